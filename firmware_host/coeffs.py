@@ -1,0 +1,210 @@
+"""Coefficient banks for the depth-adaptive matched filter: make, quantize, save, load.
+
+A bank is ``K`` templates of ``L`` signed 16-bit taps (``model.matched_filter.Bank``). Template 0
+is the emitted pulse; template ``k >= 1`` is the bottom return expected in depth bin ``k - 1``
+(seed 001: Monte Carlo returns, stretched with depth). Every template is scaled to the same
+energy (L2 norm) before rounding, so that the noise at the filter output, and with it the peak
+detector's one threshold, is the same whichever template is in use (``docs/spec.md`` section 4).
+
+Files: JSON (the bank with its metadata, for people and for ``albcap load``) and ``$readmemh``
+hex (for FPGA memory initialization: ``K_MAX * L_MAX`` words, template ``k`` tap ``j`` at address
+``k * L_MAX + j``, four hex digits two's complement, unused words 0000). Loading checks
+everything before returning, so a bad file never yields a half-made bank.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from model.fixed import int_range
+from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH, Bank
+
+__all__ = [
+    "BANK_FORMAT",
+    "bank_from_templates",
+    "gaussian_pulse",
+    "load_bank_json",
+    "out_shift_for",
+    "quantization_snr_loss_db",
+    "read_bank_hex",
+    "save_bank_json",
+    "write_bank_hex",
+]
+
+#: ``format`` field of a bank JSON file.
+BANK_FORMAT = "albcap-bank-1"
+_C_LO, _C_HI = int_range(COEF_WIDTH, signed=True)
+
+
+def gaussian_pulse(fwhm_samples: float, n_taps: int, centre: float | None = None) -> np.ndarray:
+    """A Gaussian pulse of full width at half maximum ``fwhm_samples``, ``n_taps`` long.
+
+    Returns float64 (n_taps,), peak 1 at ``centre`` (default the middle), samples.
+    """
+    if not (fwhm_samples > 0 and math.isfinite(fwhm_samples)):
+        raise ValueError(f"fwhm_samples must be positive, not {fwhm_samples!r}")
+    if not 1 <= n_taps <= L_MAX:
+        raise ValueError(f"n_taps must be in 1..{L_MAX}, not {n_taps!r}")
+    c = (n_taps - 1) / 2 if centre is None else centre
+    sigma = fwhm_samples / math.sqrt(8 * math.log(2))
+    j = np.arange(n_taps, dtype=np.float64)
+    return np.exp(-0.5 * ((j - c) / sigma) ** 2)
+
+
+def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0) -> Bank:
+    """Quantize float templates to a bank of equal-energy 16-bit templates.
+
+    Parameters
+    ----------
+    templates : array_like of float, shape (K, L)
+        Template waveforms in time order (any scale; each is normalized).
+    ref_offsets : array_like of float, shape (K,), optional
+        Index within each template of the true event time, samples (default: each argmax).
+    bank_id : int
+        Commit count recorded in frame headers.
+
+    Returns
+    -------
+    Bank
+        All templates scaled to one common L2 norm, the largest that keeps every tap within
+        ``-32768..32767``, then rounded to the nearest integer.
+    """
+    t = np.asarray(templates, dtype=np.float64)
+    if t.ndim != 2 or not (1 <= t.shape[0] <= K_MAX and 1 <= t.shape[1] <= L_MAX):
+        raise ValueError(f"templates must have shape (K <= {K_MAX}, L <= {L_MAX}), not {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise ValueError("templates must be finite; they contain NaN or infinity")
+    norms = np.linalg.norm(t, axis=1)
+    if np.any(norms == 0):
+        raise ValueError(f"template {int(np.argmin(norms))} is all zeros")
+    unit = t / norms[:, None]
+    energy = _C_HI / np.max(np.abs(unit))
+    coefs = np.clip(np.rint(unit * energy), _C_LO, _C_HI).astype(np.int16)
+    if ref_offsets is None:
+        ref_offsets = np.argmax(t, axis=1).astype(np.float64)
+    return Bank(coefs, ref_offsets, bank_id)
+
+
+def quantization_snr_loss_db(templates, bank: Bank) -> np.ndarray:
+    """Matched-filter SNR lost by quantizing each template, dB (>= 0), shape (K,).
+
+    For white noise, filtering a signal of shape ``s`` with taps ``h`` gives
+    ``SNR(h) / SNR(s) = (s.h)^2 / (|s|^2 |h|^2)``; the loss is minus ten log of that.
+    """
+    s = np.asarray(templates, dtype=np.float64)
+    h = bank.coefs.astype(np.float64)
+    if s.shape != h.shape:
+        raise ValueError(f"templates shape {s.shape} does not match the bank's {h.shape}")
+    cos2 = np.sum(s * h, axis=1) ** 2 / (np.sum(s * s, axis=1) * np.sum(h * h, axis=1))
+    return -10.0 * np.log10(np.minimum(cos2, 1.0))
+
+
+def out_shift_for(bank: Bank, x_lo: int, x_hi: int) -> int:
+    """The smallest ``out_shift`` for which no input in ``x_lo..x_hi`` can saturate ``y``.
+
+    The worst case per template is every tap meeting the input extreme of its own sign.
+    """
+    h = bank.coefs.astype(np.int64)
+    worst = np.maximum(np.sum(np.where(h > 0, h * x_hi, h * x_lo), axis=1),
+                       -np.sum(np.where(h > 0, h * x_lo, h * x_hi), axis=1)).max()
+    y_hi = (1 << (OUT_WIDTH - 1)) - 1
+    shift = 0
+    while ((int(worst) + (1 << shift >> 1)) >> shift) > y_hi:
+        shift += 1
+    return shift
+
+
+def save_bank_json(path, bank: Bank, **meta) -> None:
+    """Write ``bank`` and free-form metadata (units in the key names) as JSON, atomically."""
+    doc = {
+        "format": BANK_FORMAT,
+        "coef_width": COEF_WIDTH,
+        "K": bank.K,
+        "L": bank.L,
+        "bank_id": bank.bank_id,
+        "ref_offsets": [float(v) for v in bank.ref_offsets],
+        "coefs": bank.coefs.tolist(),
+        "meta": meta,
+    }
+    _write_atomic(Path(path), json.dumps(doc, indent=1) + "\n")
+
+
+def load_bank_json(path) -> tuple[Bank, dict]:
+    """Read a bank JSON file; returns ``(bank, meta)``.
+
+    Raises ``ValueError`` naming the file and what is wrong (format, shapes, ranges); nothing
+    is returned unless the whole bank is valid.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(doc, dict) or doc.get("format") != BANK_FORMAT:
+        got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+        raise ValueError(f"{path}: format must be {BANK_FORMAT!r}, not {got!r}")
+    if doc.get("coef_width") != COEF_WIDTH:
+        raise ValueError(f"{path}: coef_width must be {COEF_WIDTH}, not {doc.get('coef_width')!r}")
+    coefs = doc.get("coefs")
+    try:
+        arr = np.array(coefs, dtype=object)
+        if arr.ndim != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
+                                    for v in arr.flat):
+            raise TypeError
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: coefs must be a K x L list of integers") from None
+    if arr.shape != (doc.get("K"), doc.get("L")):
+        raise ValueError(f"{path}: coefs shape {arr.shape} does not match K={doc.get('K')!r}, "
+                         f"L={doc.get('L')!r}")
+    ints = arr.astype(np.int64)
+    bad = (ints < _C_LO) | (ints > _C_HI)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise ValueError(f"{path}: coefs[{k}][{j}] must be in {_C_LO}..{_C_HI}, "
+                         f"not {ints[k, j]}")
+    try:
+        bank = Bank(ints.astype(np.int16), doc.get("ref_offsets"), doc.get("bank_id", 0))
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    return bank, dict(doc.get("meta") or {})
+
+
+def write_bank_hex(path, bank: Bank) -> None:
+    """Write the ``$readmemh`` image: ``K_MAX * L_MAX`` lines of four hex digits."""
+    mem = np.zeros((K_MAX, L_MAX), np.int64)
+    mem[: bank.K, : bank.L] = bank.coefs
+    lines = [f"{int(v) & 0xFFFF:04x}" for v in mem.reshape(-1)]
+    header = f"// albcap bank_id={bank.bank_id} K={bank.K} L={bank.L}; address = k*{L_MAX} + j\n"
+    _write_atomic(Path(path), header + "\n".join(lines) + "\n")
+
+
+def read_bank_hex(path, K: int, L: int, ref_offsets=None, bank_id: int = 0) -> Bank:
+    """Read a ``$readmemh`` image written by :func:`write_bank_hex` (geometry given)."""
+    path = Path(path)
+    words = []
+    for i, line in enumerate(path.read_text().splitlines(), 1):
+        line = line.split("//")[0].strip()
+        if not line:
+            continue
+        try:
+            v = int(line, 16)
+        except ValueError:
+            raise ValueError(f"{path}:{i}: not a hex word: {line!r}") from None
+        if not 0 <= v <= 0xFFFF:
+            raise ValueError(f"{path}:{i}: word must be 0000..ffff, not {line!r}")
+        words.append(v - 0x10000 if v & 0x8000 else v)
+    if len(words) != K_MAX * L_MAX:
+        raise ValueError(f"{path}: must hold {K_MAX * L_MAX} words, not {len(words)}")
+    mem = np.array(words, np.int16).reshape(K_MAX, L_MAX)
+    return Bank(mem[:K, :L].copy(), ref_offsets, bank_id)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write via a temporary file and rename, so a crash never leaves half a bank on disk."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
