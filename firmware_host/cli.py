@@ -18,6 +18,7 @@ __all__ = ["main"]
 COMMAND_MODULES = (
     "model.cli",
     "sim.cli",
+    "hdl.cli",
 )
 
 

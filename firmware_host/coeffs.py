@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH, Bank
 
 __all__ = [
     "BANK_FORMAT",
+    "SceneBank",
     "bank_from_templates",
     "gaussian_pulse",
     "load_bank_json",
@@ -32,6 +34,7 @@ __all__ = [
     "quantization_snr_loss_db",
     "read_bank_hex",
     "save_bank_json",
+    "scene_bank",
     "write_bank_hex",
 ]
 
@@ -201,6 +204,108 @@ def read_bank_hex(path, K: int, L: int, ref_offsets=None, bank_id: int = 0) -> B
         raise ValueError(f"{path}: must hold {K_MAX * L_MAX} words, not {len(words)}")
     mem = np.array(words, np.int16).reshape(K_MAX, L_MAX)
     return Bank(mem[:K, :L].copy(), ref_offsets, bank_id)
+
+
+@dataclass(frozen=True)
+class SceneBank:
+    """A bank made for a scene, with the register values that go with it.
+
+    Attributes
+    ----------
+    bank : Bank
+    templates : float64 ndarray, shape (K, L)
+        The unquantized templates.
+    bin_depths_m : float64 ndarray, shape (K,)
+        Depth each template was made for (0 for template 0, the emitted pulse), m.
+    bin_offset, bin_len : int
+        Registers: samples from the surface peak to the first bin, and per bin.
+    out_shift : int
+        Register: the smallest shift that cannot saturate for the stitched range given.
+    snr_loss_db : float64 ndarray, shape (K,)
+        Matched-filter SNR lost to quantization, dB.
+    """
+
+    bank: Bank
+    templates: np.ndarray
+    bin_depths_m: np.ndarray
+    bin_offset: int
+    bin_len: int
+    out_shift: int
+    snr_loss_db: np.ndarray
+
+
+def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 2.0,
+               x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
+               mc_packets: int = 20000, mc_seed: int = 4242) -> SceneBank:
+    """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
+
+    Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
+    electrical response). Template ``k >= 1`` is the bottom return expected at the centre of
+    depth bin ``k - 1``: the Monte Carlo photon-transport return of the scene's water at the
+    bin's centre depth (``sim.montecarlo``; seed 001 section 2.3), through the same electrical
+    response. Bins divide ``first_bin_m .. scene.max_depth_m`` equally. Each template's
+    reference offset is the index of the unscattered echo time, so depths need no further
+    peak-offset correction (seed 001's per-depth correction).
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+    n_templates : int
+        K; 1 gives the fixed matched filter.
+    n_taps : int
+        L.
+    first_bin_m : float
+        Depth where template 1 starts, m (template 0 serves shallower bottoms).
+    x_range : (int, int)
+        Range of the stitched input, for the output shift (default: the linear rule's).
+    mc_packets, mc_seed : int
+        Photon packets per leg and seed of the Monte Carlo run.
+    """
+    from sim.optics import refracted_angle
+
+    if not 1 <= n_templates <= K_MAX:
+        raise ValueError(f"n_templates must be in 1..{K_MAX}, not {n_templates!r}")
+    if not 8 <= n_taps <= L_MAX:
+        raise ValueError(f"n_taps must be in 8..{L_MAX}, not {n_taps!r}")
+    dt = scene.dt_s
+    sigma_e = math.sqrt(math.log(2)) / (2 * math.pi * scene.electrical_bandwidth_hz)
+    sigma = math.hypot(scene.pulse_fwhm_s / math.sqrt(8 * math.log(2)), sigma_e)
+    cos_w = math.cos(refracted_angle(scene.incidence_deg, scene.n_water))
+    m_per_sample = 299_792_458.0 / scene.n_water * dt / 2 * cos_w
+    n_bins = n_templates - 1
+    width_m = (scene.max_depth_m - first_bin_m) / max(n_bins, 1)
+    depths = np.array([0.0] + [first_bin_m + (k + 0.5) * width_m for k in range(n_bins)])
+    j = np.arange(n_taps, dtype=np.float64)
+    templates = np.empty((n_templates, n_taps))
+    ref = np.empty(n_templates)
+    c0 = (n_taps - 1) / 2
+    templates[0] = np.exp(-0.5 * ((j - c0) * dt / sigma) ** 2)
+    ref[0] = c0
+    if n_bins:
+        # Seed 001: the templates are the Monte Carlo bottom returns themselves, here seen
+        # through the receiver's electrical response as the digitizer sees them.
+        from scipy.ndimage import gaussian_filter1d
+
+        from sim.montecarlo import bottom_returns
+        from sim.stretching import mc_params
+
+        mc = bottom_returns(depths[1:], mc_packets, mc_seed, **mc_params(scene))
+        step = mc.time_s[1] - mc.time_s[0]
+        for k in range(1, n_templates):
+            wave = gaussian_filter1d(mc.waveforms[k - 1], sigma_e / step, mode="constant")
+            lead = max(3.0 * sigma, -float(mc.time_s[np.argmax(wave > 1e-3 * wave.max())]))
+            ref[k] = min(lead / dt, n_taps / 3)
+            templates[k] = np.interp((j - ref[k]) * dt, mc.time_s, wave, left=0.0, right=0.0)
+    bank = bank_from_templates(templates, ref, bank_id)
+    return SceneBank(
+        bank=bank,
+        templates=templates,
+        bin_depths_m=depths,
+        bin_offset=max(16, round(first_bin_m / m_per_sample)),
+        bin_len=max(1, round(width_m / m_per_sample)),
+        out_shift=out_shift_for(bank, *x_range),
+        snr_loss_db=quantization_snr_loss_db(templates, bank),
+    )
 
 
 def _write_atomic(path: Path, text: str) -> None:

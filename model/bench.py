@@ -41,7 +41,7 @@ def synthetic_codes(n_frames: int, n_samples: int, seed: int = 0) -> np.ndarray:
     return out
 
 
-def workload_bank(K: int = 8, L: int = 32) -> Bank:  # noqa: N803
+def workload_bank(K: int = 8, L: int = 32) -> Bank:
     """Gaussian templates widening with the bin, equal energy, 16-bit."""
     j = np.arange(L)
     widths = np.linspace(4.2, 12.0, K)[:, None]
@@ -63,7 +63,7 @@ def _equal(a, b) -> bool:
     return np.array_equal(ra, rb) and np.array_equal(ca, cb)
 
 
-def bench_chain(n_frames: int = 4096, n_samples: int = 2048, K: int = 8, L: int = 32,  # noqa: N803
+def bench_chain(n_frames: int = 4096, n_samples: int = 2048, K: int = 8, L: int = 32,
                 baseline_frames: int = 128, repeats: int = 3, seed: int = 0) -> dict:
     """Measure the chain; returns the figures as a dict (see the module docstring).
 

@@ -93,7 +93,8 @@ def register(sub) -> None:
 
 def register_bench(bench_sub) -> None:
     """Add ``albcap bench model``."""
-    p = bench_sub.add_parser("model", help="frames/s of the bit-exact chain vs a per-frame baseline")
+    p = bench_sub.add_parser("model",
+                             help="frames/s of the bit-exact chain vs a per-frame baseline")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--frames", type=int, default=4096)
     p.add_argument("--samples", type=int, default=2048)

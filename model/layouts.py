@@ -42,7 +42,7 @@ class FrameType(IntEnum):
 class FrameFlag(IntEnum):
     """Bits of the header field ``flags``."""
 
-    FINE_SATURATED = 0x01  #: the fine time counter reached its maximum before this trigger
+    FINE_SATURATED = 0x01  #: the fine count at this trigger exceeded 2^24-1 and was clipped
     RETRIGGER = 0x02  #: a trigger arrived while this frame's gate was open and was ignored
     SURFACE = 0x04  #: the peak detector found a surface in this frame
     BOTTOM = 0x08  #: the peak detector found a bottom in this frame
@@ -166,7 +166,7 @@ FRAME_HEADER = Layout(
         ("sync", 2, False, "frame sync word `0xA55A` (bytes `5A A5`)"),
         ("frame_type", 1, False,
          "payload type, `FrameType`: 0 raw, 1 stitched, 2 filtered, 3 peaks"),
-        ("flags", 1, False, "`FrameFlag` bits: 1 fine counter saturated, 2 retrigger, "
+        ("flags", 1, False, "`FrameFlag` bits: 1 fine count clipped, 2 retrigger, "
                             "4 surface found, 8 bottom found"),
         ("fine_time", 3, False, "fine sync (seed 003): `fine_div`-clock ticks from the last "
                                 "line sync to the trigger, saturating at 2^24-1"),

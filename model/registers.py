@@ -51,7 +51,7 @@ _SPEC = [
     ("k_thr_q4", 12, 128, 0, 4095, "peak", "threshold factor on the noise, in 1/16 (8.0 = 128)"),
     ("min_thr", 24, 1, 0, (1 << 24) - 1, "peak", "threshold floor, filter LSB"),
     ("min_sep", 16, 12, 1, 65535, "peak", "minimum samples from the surface to a bottom peak"),
-    ("bottom_rule", 1, 0, 0, 1, "peak", "0 latest peak (seed 000), 1 largest peak"),
+    ("bottom_rule", 2, 0, 0, 2, "peak", "0 latest peak (seed 000), 1 largest, 2 largest rise"),
 ]
 
 REGISTERS: tuple[Register, ...] = tuple(

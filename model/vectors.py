@@ -70,7 +70,7 @@ def _gate_cases(rng):
     return cases
 
 
-def _bank(rng, K, L, extreme=False):  # noqa: N803
+def _bank(rng, K, L, extreme=False):
     if extreme:
         return Bank(np.full((K, L), -32768, np.int16))
     return Bank(rng.integers(-32768, 32768, (K, L)).astype(np.int16))
@@ -78,8 +78,8 @@ def _bank(rng, K, L, extreme=False):  # noqa: N803
 
 def _filter_cases(rng):
     cases = []
-    N = 300  # noqa: N806
-    for K, L, shift in ((1, 1, 0), (8, 32, 15), (16, 64, 20)):  # noqa: N806
+    N = 300
+    for K, L, shift in ((1, 1, 0), (8, 32, 15), (16, 64, 20)):
         bank = _bank(rng, K, L)
         cfg = Config(out_shift=shift, bin_offset=16, bin_len=7)
         x = rng.integers(-32768, 32768, (6, N)).astype(np.int16)
@@ -98,7 +98,7 @@ def _filter_cases(rng):
     return cases
 
 
-def _echo_frames(rng, B, N, amp_hi=2000):  # noqa: N803
+def _echo_frames(rng, B, N, amp_hi=2000):
     """Synthetic filtered-looking frames: noise, a surface and a later bottom pulse."""
     t = np.arange(N)
     y = rng.normal(0, 30, (B, N))

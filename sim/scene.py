@@ -104,7 +104,8 @@ class Scene:
     channel_delay_samples: tuple = _t((0.0, 0.0, 0.0), "samples", "per-channel delay", -64, 64)
     channel_gain_error: tuple = _t((0.0, 0.0, 0.0), "1", "per-channel relative gain error",
                                    -0.5, 0.5)
-    channel_noise_lsb: tuple = _t((0.0, 0.0, 0.0), "LSB", "per-channel ADC noise rms", 0.0, 100.0)
+    channel_noise_lsb: tuple = _t((0.4, 0.4, 0.4), "LSB", "per-channel ADC noise rms (assumed)",
+                                  0.0, 100.0)
     # simulation control
     sampling_phase_jitter: bool = field(default=True, metadata={
         "unit": "", "doc": "random laser-fire phase within a sample period"})
@@ -177,6 +178,8 @@ ASSUMED = {
     "excess_noise_factor": "typical PMT",
     "transimpedance_ohm": "chosen so seed 000 levels resemble its Figs. 2 and 4 (docs/sim.md)",
     "electronics_noise_v": "0.3 LSB of the high-gain channel (dithers its quantization)",
+    "channel_noise_lsb": "0.4 LSB rms per ADC: with quantization about 0.5 LSB, the noise of an "
+                         "8-bit GS/s converter of ENOB near 7 bits",
 }
 
 _PRESETS = {

@@ -1,0 +1,75 @@
+"""``albcap hdl``: the HDL's command-line front end.
+
+``albcap hdl export --out DIR`` writes the Verilog of every exported component
+(:data:`hdl.verilog.COMPONENTS`, production parameters) and the register map as JSON, for
+engineers who build the digitizer outside this project.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+__all__ = ["export", "register", "register_map"]
+
+
+def register_map() -> dict:
+    """The register map as a JSON-ready dict, computed from :data:`model.registers.REGISTERS`.
+
+    ``address`` is the word index of :mod:`model.registers` (one 32-bit word per register).
+    """
+    from model.registers import REGISTERS
+
+    return {"word_bits": 32, "registers": [dataclasses.asdict(r) for r in REGISTERS]}
+
+
+def export(out_dir, names=None) -> list[Path]:
+    """Write ``<name>.v`` per component and ``registers.json`` into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : path
+        Created if missing; existing files of the same names are overwritten.
+    names : list of str, optional
+        Component module names to export (default: all of :data:`hdl.verilog.COMPONENTS`).
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    from .verilog import COMPONENTS, write_verilog
+
+    names = list(COMPONENTS) if names is None else list(names)
+    unknown = [n for n in names if n not in COMPONENTS]
+    if unknown:
+        raise ValueError(f"unknown components {unknown}; known: {sorted(COMPONENTS)}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [write_verilog(COMPONENTS[n](), n, out) for n in names]
+    regs = out / "registers.json"
+    regs.write_text(json.dumps(register_map(), indent=2) + "\n")
+    return [*files, regs]
+
+
+def _export(args) -> int:
+    for path in export(args.out, args.component or None):
+        print(path)
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add ``hdl`` and its actions to the ``albcap`` command's subparsers."""
+    from .verilog import COMPONENTS
+
+    hdl = subparsers.add_parser("hdl", help="HDL: export Verilog and the register map")
+    actions = hdl.add_subparsers(dest="hdl_action", metavar="ACTION", required=True)
+    exp = actions.add_parser(
+        "export", help="write Verilog of every component and registers.json",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    exp.add_argument("--out", required=True, type=Path, help="output directory")
+    exp.add_argument("--component", action="append", choices=sorted(COMPONENTS),
+                     help="export only this component (repeatable; default all)")
+    exp.set_defaults(func=_export)

@@ -1,0 +1,124 @@
+"""Stitch three 8-bit channels into one s16 sample: the HDL twin of :mod:`model.stitch`.
+
+Both rules of ``docs/spec.md`` section 2 run on one datapath. Each rule picks the channel to use
+(high unless its code is saturated, then middle, then low) and computes
+``round_shift((code - offset) * ratio, RATIO_FRAC)`` saturated to s16:
+
+=============  ==============================  =====================================
+rule, channel  ``offset``                      ``ratio``
+=============  ==============================  =====================================
+paper, high    0                               ``2^RATIO_FRAC`` (x1)
+paper, middle  ``-CODE_MAX`` (adds ``D_h``)    ``2^RATIO_FRAC``
+paper, low     ``-2 CODE_MAX``                 ``2^RATIO_FRAC``
+linear, high   ``baseline_h``                  ``2^RATIO_FRAC``
+linear, mid    ``baseline_m``                  ``ratio_m_q8``
+linear, low    ``baseline_l``                  ``ratio_l_q8``
+=============  ==============================  =====================================
+
+With ``ratio = 2^RATIO_FRAC`` the rounding shift returns ``code - offset`` exactly, so the paper
+rule (where the middle case is ``D_m + D_h`` with ``D_h = CODE_MAX``) is the same multiplier with
+other operands; one pipeline, one timing path, both modes tested through it.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Module, Mux, Signal, signed, unsigned
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.stitch import CODE_MAX, RATIO_FRAC, STITCH_WIDTH
+
+from .layouts import CODES, STITCHED, config_signature
+
+__all__ = ["LATENCY", "Stitch"]
+
+#: Clocks from an accepted input sample to its output being valid, with no backpressure.
+LATENCY = 3
+
+# Largest magnitude of (code - offset): a paper-mode low-channel sample, D_l + 2 * CODE_MAX.
+_OPERAND = signed((3 * CODE_MAX).bit_length() + 1)
+
+
+class Stitch(wiring.Component):
+    """Stitch low/middle/high-gain ADC codes into one s16 sample per clock.
+
+    Bit-exact to :func:`model.stitch.stitch` in both modes for every register value the model
+    accepts.
+
+    Attributes
+    ----------
+    i : In(stream.Signature(CODES))
+        The three codes of one sample (``l``, ``m``, ``h``).
+    o : Out(stream.Signature(signed(STITCH_WIDTH)))
+        The stitched sample.
+    cfg : In(config_signature("stitch"))
+        The ``stitch`` register group (``stitch_mode``, ``sat_threshold``, ``baseline_l/m/h``,
+        ``ratio_m_q8``, ``ratio_l_q8``), driven from outside (the register block).
+
+    Notes
+    -----
+    Latency: :data:`LATENCY` = 3 clocks (input operands registered, product registered,
+    rounded and saturated output registered), so the multiplier sits between two registers and
+    can map onto an ECP5 ``MULT18X18D`` with its own registers. Throughput: one sample per clock
+    while ``o.ready`` is high.
+
+    Backpressure stalls the whole pipeline: ``i.ready = o.ready | ~o.valid``, a combinational
+    path from ``o.ready`` to ``i.ready`` (allowed for a stream consumer). Bubbles inside the
+    pipeline are not squeezed out while the output is stalled.
+
+    Known failure modes: the registers are sampled as each sample enters the pipeline, so a
+    register write takes effect for the samples accepted from the next clock on; samples already
+    inside the pipeline keep the old values. ``sat_threshold = 0`` is outside the map (1..255)
+    and makes every channel count as saturated in linear mode (the low channel is always used).
+    """
+
+    def __init__(self):
+        super().__init__({
+            "i": In(stream.Signature(CODES)),
+            "o": Out(stream.Signature(STITCHED)),
+            "cfg": In(config_signature("stitch")),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, d = self.cfg, self.i.payload
+        advance = Signal()
+        m.d.comb += [
+            advance.eq(self.o.ready | ~self.o.valid),
+            self.i.ready.eq(advance),
+        ]
+
+        # Stage 1: channel selection and multiplier operands.
+        paper = cfg.stitch_mode == 0
+        t = Mux(paper, CODE_MAX, cfg.sat_threshold)
+        h_ok, m_ok = d.h < t, d.m < t
+        unity = 1 << RATIO_FRAC
+        code = Mux(h_ok, d.h, Mux(m_ok, d.m, d.l))
+        offset = Signal(signed(10))  # -2 * CODE_MAX .. CODE_MAX
+        with m.If(paper):
+            m.d.comb += offset.eq(Mux(h_ok, 0, Mux(m_ok, -CODE_MAX, -2 * CODE_MAX)))
+        with m.Else():
+            m.d.comb += offset.eq(Mux(h_ok, cfg.baseline_h,
+                                      Mux(m_ok, cfg.baseline_m, cfg.baseline_l)))
+        ratio = Mux(paper | h_ok, unity, Mux(m_ok, cfg.ratio_m_q8, cfg.ratio_l_q8))
+
+        a1 = Signal(_OPERAND)
+        r1 = Signal(unsigned(16))
+        v1 = Signal()
+        # Stage 2: the product.
+        p2 = Signal.like(a1 * r1)
+        v2 = Signal()
+        # Stage 3: round half up, saturate (the output register).
+        rounded = (p2 + (1 << (RATIO_FRAC - 1))) >> RATIO_FRAC
+        lo, hi = -(1 << (STITCH_WIDTH - 1)), (1 << (STITCH_WIDTH - 1)) - 1
+        with m.If(advance):
+            m.d.sync += [
+                a1.eq(code - offset),
+                r1.eq(ratio),
+                v1.eq(self.i.valid),
+                p2.eq(a1 * r1),
+                v2.eq(v1),
+                self.o.payload.eq(Mux(rounded < lo, lo, Mux(rounded > hi, hi, rounded))),
+                self.o.valid.eq(v2),
+            ]
+        return m

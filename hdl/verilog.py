@@ -1,0 +1,50 @@
+"""Verilog from Amaranth components, and the list of components this project exports.
+
+The Verilog is generated without source-location attributes so that the same design always
+gives the same text: build caches key on it, and exported files diff cleanly between versions.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from amaranth.back import verilog
+from amaranth.lib import wiring
+
+__all__ = ["COMPONENTS", "to_verilog", "write_verilog"]
+
+
+def to_verilog(component: wiring.Component, name: str) -> str:
+    """Verilog text of ``component`` as module ``name`` (ports from its signature).
+
+    Ports are the signature's members flattened with ``__`` (``i__valid``, ``cfg__gate_len``)
+    plus ``clk`` and ``rst`` (synchronous, active high) of the ``sync`` domain.
+    """
+    if not isinstance(component, wiring.Component):
+        raise TypeError(f"component must be an amaranth wiring.Component, not {component!r}")
+    return verilog.convert(component, name=name, emit_src=False)
+
+
+def write_verilog(component: wiring.Component, name: str, out_dir) -> Path:
+    """Write ``<out_dir>/<name>.v`` and return its path."""
+    path = Path(out_dir) / f"{name}.v"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(to_verilog(component, name))
+    return path
+
+
+def _stitch():
+    from .stitch import Stitch
+    return Stitch()
+
+
+def _gate():
+    from .gate import Gate
+    return Gate()
+
+
+#: Exported components by module name, each with its production parameters.
+COMPONENTS = {
+    "albcap_stitch": _stitch,
+    "albcap_gate": _gate,
+}
