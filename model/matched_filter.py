@@ -240,7 +240,8 @@ def matched_filter(x, bank: Bank, cfg: Config, surface_n=None) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------
-# Fast path, shared with model.detect.filter_and_detect
+# The vectorized path of matched_filter: blocked matrix products in float64 (exact here).
+# Independent of the compiled loop of model.kernel, which the tests compare it with.
 
 
 @dataclass(frozen=True)

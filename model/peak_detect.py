@@ -5,8 +5,9 @@ On the filter output ``y`` of one frame (``N`` samples, warm-up ``W = L - 1``,
 baseline ``mu`` over ``[W, W + P)``, mean absolute deviation ``noise`` over ``[W + P, W + 2P)``,
 threshold ``thr = max(min_thr, (k_thr_q4 * noise) >> 4)``; a peak is ``y[n-1] < y[n] >= y[n+1]``
 with ``y[n] - mu > thr`` at ``n`` in ``[W + 2P, N - 2]``; the surface is the first peak, the
-bottom the latest (``bottom_rule = 0``) or largest (``1``, earliest on a tie) peak at least
-``min_sep`` samples after it; position by an integer parabola in 1/256 sample.
+bottom, among the peaks at least ``min_sep`` samples after it, the latest (``bottom_rule = 0``),
+the largest (``1``) or the one rising most above the running minimum since the surface (``2``),
+earliest on a tie; position by an integer parabola in 1/256 sample.
 
 :class:`PeakDetectStream` is the sample-order twin (what the hardware does): running sums and
 running best peaks, any chunking, same result as :func:`peak_detect`.
@@ -180,7 +181,7 @@ def peak_detect(y, warmup: int, cfg: Config, templates=None) -> PeakResult:
         mu, noise, thr = thresholds(mu_sum, dev, cfg)
         r, c = find_peaks_rows(yy, n0, N - 2, mu + thr)
         found_s, s_n, (r, c) = first_and_rest(r, c, len(yy), cfg.min_sep)
-        found_b, b_n = pick_bottom(r, c, yy, len(yy), cfg.bottom_rule)
+        found_b, b_n = pick_bottom(r, c, yy, len(yy), cfg.bottom_rule, s_n)
         cols["mu"][lo:hi], cols["noise"][lo:hi], cols["thr"][lo:hi] = mu, noise, thr
         cols["s"][lo:hi], cols["b"][lo:hi] = s_n, b_n
         fs[lo:hi], fb[lo:hi] = found_s, found_b
@@ -233,9 +234,11 @@ def first_and_rest(r, c, n_rows, min_sep):
     return found, s, (r[keep], c[keep])
 
 
-def pick_bottom(r, c, v, n_rows, rule):
-    """Bottom per row among candidates ``(r, c)`` (row-major): the latest (``rule`` 0) or the
-    largest ``v[r, c]``, earliest on a tie (``rule`` 1). Returns ``found`` and ``n`` (R,)."""
+def pick_bottom(r, c, v, n_rows, rule, s=None):
+    """Bottom per row among candidates ``(r, c)`` (row-major): the latest (``rule`` 0), the
+    largest ``v[r, c]`` (1) or the largest rise ``v[r, c] - min(v[r, s[r]..c])`` (2), earliest
+    on a tie. ``s`` (R,) is each row's surface, needed by rule 2. Returns ``found``, ``n`` (R,).
+    """
     found = np.zeros(n_rows, bool)
     n = np.zeros(n_rows, np.int64)
     if len(r) == 0:
@@ -243,13 +246,23 @@ def pick_bottom(r, c, v, n_rows, rule):
     if rule == 0:
         pick = np.flatnonzero(np.r_[r[1:] != r[:-1], True])
     else:
-        # sort by row, then value descending, then column: the first of each row wins
-        order = np.lexsort((c, -v[r, c].astype(np.int64), r))
+        key = v[r, c].astype(np.int64)
+        if rule == 2:
+            key -= running_min_from(v, s)[r, c]
+        # sort by row, then key descending, then column: the first of each row wins
+        order = np.lexsort((c, -key, r))
         rs = r[order]
         pick = order[np.flatnonzero(np.r_[True, rs[1:] != rs[:-1]])]
     found[r[pick]] = True
     n[r[pick]] = c[pick]
     return found, n
+
+
+def running_min_from(v, s) -> np.ndarray:
+    """``out[r, n] = min(v[r, s[r]..n])`` for ``n >= s[r]`` (int64 (R, C); int64 max before)."""
+    v = np.asarray(v, dtype=np.int64)
+    before = np.arange(v.shape[1])[None, :] < np.asarray(s)[:, None]
+    return np.minimum.accumulate(np.where(before, np.iinfo(np.int64).max, v), axis=1)
 
 
 def _assemble(fy, ft, cols, fs, fb, shape) -> PeakResult:
@@ -291,7 +304,13 @@ def peak_detect_reference(y, warmup: int, cfg: Config, templates=None) -> PeakRe
             later = peaks[peaks >= peaks[0] + cfg.min_sep]
             if len(later):
                 fb[f] = True
-                cols["b"][f] = later[-1] if cfg.bottom_rule == 0 else later[np.argmax(v[later])]
+                if cfg.bottom_rule == 0:
+                    cols["b"][f] = later[-1]
+                elif cfg.bottom_rule == 1:
+                    cols["b"][f] = later[np.argmax(v[later])]
+                else:  # rise above min(v[s..n]); argmax takes the earliest on a tie
+                    vmin = np.minimum.accumulate(v[peaks[0]:])[later - peaks[0]]
+                    cols["b"][f] = later[np.argmax(v[later] - vmin)]
     return _assemble(y.reshape(-1, N), ft, cols, fs, fb, y.shape[:-1])
 
 
@@ -328,6 +347,8 @@ class PeakDetectStream:
         self._last_k = np.zeros((F, 1), np.int64)  # k[n-1]
         self._cand = {key: (np.zeros(F, bool), np.zeros((F, 5), np.int64))  # n, a, b, c, k
                       for key in ("s", "b")}
+        self._best = np.zeros(F, np.int64)  # the bottom's key: y (rule 1) or rise (rule 2)
+        self._vmin = np.zeros(F, np.int64)  # min of y from the surface on (rule 2)
 
     @property
     def surface_n(self) -> np.ndarray:
@@ -380,12 +401,27 @@ class PeakDetectStream:
             i = ok.shape[1] - 1 - np.argmax(ok[:, ::-1], axis=1)
             take = ok.any(axis=1)
         else:
-            vals = np.where(ok, b, np.iinfo(np.int64).min)
+            key = b
+            if self.cfg.bottom_rule == 2:
+                key = b - self._running_min(centre, b, s_found, s_rec[:, 0])
+            vals = np.where(ok, key, np.iinfo(np.int64).min)
             i = np.argmax(vals, axis=1)  # first maximum: earliest on a tie
-            take = ok.any(axis=1) & (~b_found | (vals[rows, i] > b_rec[:, 2]))
+            take = ok.any(axis=1) & (~b_found | (vals[rows, i] > self._best))
+            self._best[take] = vals[rows, i][take]
         for col, arr in enumerate((centre[i], a[rows, i], b[rows, i], c[rows, i], k[rows, i])):
             b_rec[take, col] = arr[take]
         b_found |= take
+
+    def _running_min(self, centre, b, s_found, s_n):
+        """``min(y[s..m])`` at each centre ``m`` of this chunk; carries it to the next chunk."""
+        big = np.iinfo(np.int64).max
+        after = s_found[:, None] & (centre[None, :] >= s_n[:, None])
+        run = np.minimum.accumulate(np.where(after, b, big), axis=1)
+        had = s_found & (s_n < centre[0]) if centre.size else s_found
+        run = np.minimum(run, np.where(had, self._vmin, big)[:, None])
+        if centre.size:
+            self._vmin = np.where(s_found, run[:, -1], self._vmin)
+        return run
 
     def end_frame(self) -> PeakResult:
         """Close the frame: return its :class:`PeakResult` and get ready for the next frame."""

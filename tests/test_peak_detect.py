@@ -49,13 +49,13 @@ def noisy_case(seed, B=4, N=None, W=None):
     W = int(rng.integers(0, 64)) if W is None else W
     cfg = Config(noise_log2=int(rng.integers(2, 6)), k_thr_q4=int(rng.integers(0, 200)),
                  min_thr=int(rng.integers(0, 40)), min_sep=int(rng.integers(1, 30)),
-                 bottom_rule=int(rng.integers(0, 2)))
+                 bottom_rule=int(rng.integers(0, 3)))
     y = rng.integers(-30, 30, (B, N)) // int(rng.integers(1, 10))  # coarse: many plateaus
     return y.astype(np.int32), W, cfg, rng.integers(0, 16, (B, N))
 
 
 class TestPeakDetect:
-    @given(st.integers(0, 2**32 - 1), st.integers(0, 1))
+    @given(st.integers(0, 2**32 - 1), st.integers(0, 2))
     @SETTINGS
     def test_clean_cases_match_scipy_find_peaks(self, seed, rule):
         rng = np.random.default_rng(seed)
@@ -78,7 +78,13 @@ class TestPeakDetect:
             later = peaks[peaks >= peaks[0] + cfg.min_sep]
             assert bool(res.bottom.found) == (len(later) > 0)
             if len(later):
-                want = later[-1] if rule == 0 else later[np.argmax(y[later])]
+                if rule == 0:
+                    want = later[-1]
+                elif rule == 1:
+                    want = later[np.argmax(y[later])]
+                else:  # rise above the lowest sample between the surface and the peak
+                    rise = [y[p] - y[peaks[0]:p + 1].min() for p in later]
+                    want = later[np.argmax(rise)]
                 assert res.bottom.n == want
 
     def test_windows_use_floor_shifts(self):
@@ -124,6 +130,27 @@ class TestPeakDetect:
         big = peak_detect(y, 0, Config(noise_log2=2, min_thr=100, bottom_rule=1))
         assert (int(late.surface.n), int(late.bottom.n)) == (20, 70)
         assert (int(big.surface.n), int(big.bottom.n)) == (20, 50)  # 50 and 60 tie: earliest
+
+    def test_rise_rule_prefers_a_bottom_on_a_decaying_column(self):
+        # A water column decaying from the surface with a wiggle on it, then a smaller bottom
+        # standing well above the column: the largest-peak rule takes the wiggle, the latest-peak
+        # rule a noise blip after the bottom, the rise rule the bottom.
+        n = np.arange(200)
+        col = np.where(n > 20, 3000 * np.exp(-(n - 20) / 25.0), 0)
+        y = np.rint(col).astype(np.int64)
+        y[20] = 6000  # surface
+        y[30] += 200  # wiggle on the column, at ~2200
+        y[120:125] += [200, 500, 800, 500, 200]  # bottom at 122, 800 above a column of ~80
+        y[170] += 150  # blip after the bottom
+        y = y.astype(np.int32)
+        got = {rule: int(peak_detect(y, 0, Config(noise_log2=2, min_thr=100, bottom_rule=rule,
+                                                  min_sep=5)).bottom.n) for rule in (0, 1, 2)}
+        assert got == {0: 170, 1: 30, 2: 122}
+
+    def test_rise_rule_ties_take_the_earliest(self):
+        y = frame(90, 0, [(20, 900), (40, 500), (60, 500)])
+        r = peak_detect(y, 0, Config(noise_log2=2, min_thr=100, bottom_rule=2))
+        assert int(r.bottom.n) == 40
 
     @pytest.mark.parametrize(("gap", "found"), [(11, False), (12, True)])
     def test_min_sep_boundary(self, gap, found):
