@@ -2,9 +2,10 @@
 
 A bank is ``K`` templates of ``L`` signed 16-bit taps (``model.matched_filter.Bank``). Template 0
 is the emitted pulse; template ``k >= 1`` is the bottom return expected in depth bin ``k - 1``
-(seed 001: Monte Carlo returns, stretched with depth). Every template is scaled to the same
-energy (L2 norm) before rounding, so that the noise at the filter output, and with it the peak
-detector's one threshold, is the same whichever template is in use (``docs/spec.md`` section 4).
+(seed 001: Monte Carlo returns, stretched with depth). Every template is scaled to the same sum
+of taps (DC gain) before rounding, so that a template switch leaves the filtered water column
+continuous and the peak detector's one threshold stays on the safe side (``docs/spec.md``
+section 4); equal energy is available too.
 
 Files: JSON (the bank with its metadata, for people and for ``albcap load``) and ``$readmemh``
 hex (for FPGA memory initialization: ``K_MAX * L_MAX`` words, template ``k`` tap ``j`` at address
@@ -58,8 +59,9 @@ def gaussian_pulse(fwhm_samples: float, n_taps: int, centre: float | None = None
     return np.exp(-0.5 * ((j - c) / sigma) ** 2)
 
 
-def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0) -> Bank:
-    """Quantize float templates to a bank of equal-energy 16-bit templates.
+def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0,
+                        normalize: str = "dc") -> Bank:
+    """Quantize float templates to a bank of 16-bit templates on one common scale.
 
     Parameters
     ----------
@@ -69,11 +71,17 @@ def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0) -> Bank:
         Index within each template of the true event time, samples (default: each argmax).
     bank_id : int
         Commit count recorded in frame headers.
+    normalize : {"dc", "energy"}
+        ``dc`` (default): every template has the same sum of taps, so a slowly varying input
+        (the water column) gives the same output whichever template is in use, and a template
+        switch cannot make a false peak; broader templates then have less noise gain than
+        template 0, so the threshold set from template 0's noise is on the safe side.
+        ``energy``: the same L2 norm, i.e. the same white-noise gain for all.
 
     Returns
     -------
     Bank
-        All templates scaled to one common L2 norm, the largest that keeps every tap within
+        Templates scaled by one common factor, the largest that keeps every tap within
         ``-32768..32767``, then rounded to the nearest integer.
     """
     t = np.asarray(templates, dtype=np.float64)
@@ -81,12 +89,15 @@ def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0) -> Bank:
         raise ValueError(f"templates must have shape (K <= {K_MAX}, L <= {L_MAX}), not {t.shape}")
     if not np.all(np.isfinite(t)):
         raise ValueError("templates must be finite; they contain NaN or infinity")
-    norms = np.linalg.norm(t, axis=1)
+    if normalize not in ("dc", "energy"):
+        raise ValueError(f"normalize must be 'dc' or 'energy', not {normalize!r}")
+    norms = np.linalg.norm(t, axis=1) if normalize == "energy" else np.abs(t.sum(axis=1))
     if np.any(norms == 0):
-        raise ValueError(f"template {int(np.argmin(norms))} is all zeros")
+        what = "all zeros" if normalize == "energy" else "of zero sum"
+        raise ValueError(f"template {int(np.argmin(norms))} is {what}")
     unit = t / norms[:, None]
-    energy = _C_HI / np.max(np.abs(unit))
-    coefs = np.clip(np.rint(unit * energy), _C_LO, _C_HI).astype(np.int16)
+    scale = _C_HI / np.max(np.abs(unit))
+    coefs = np.clip(np.rint(unit * scale), _C_LO, _C_HI).astype(np.int16)
     if ref_offsets is None:
         ref_offsets = np.argmax(t, axis=1).astype(np.float64)
     return Bank(coefs, ref_offsets, bank_id)
@@ -223,6 +234,10 @@ class SceneBank:
         Register: the smallest shift that cannot saturate for the stitched range given.
     snr_loss_db : float64 ndarray, shape (K,)
         Matched-filter SNR lost to quantization, dB.
+    coverage : float64 ndarray, shape (K,)
+        Share of each expected return's area inside the ``L``-tap window (1 for template 0).
+        Well below 1, the return's tail is cut off and its centroid can no longer be placed
+        mid-window: choose more taps.
     """
 
     bank: Bank
@@ -232,9 +247,10 @@ class SceneBank:
     bin_len: int
     out_shift: int
     snr_loss_db: np.ndarray
+    coverage: np.ndarray
 
 
-def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 2.0,
+def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
                x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
                mc_packets: int = 20000, mc_seed: int = 4242) -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
@@ -278,6 +294,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     j = np.arange(n_taps, dtype=np.float64)
     templates = np.empty((n_templates, n_taps))
     ref = np.empty(n_templates)
+    coverage = np.ones(n_templates)
     c0 = (n_taps - 1) / 2
     templates[0] = np.exp(-0.5 * ((j - c0) * dt / sigma) ** 2)
     ref[0] = c0
@@ -293,9 +310,18 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         step = mc.time_s[1] - mc.time_s[0]
         for k in range(1, n_templates):
             wave = gaussian_filter1d(mc.waveforms[k - 1], sigma_e / step, mode="constant")
-            lead = max(3.0 * sigma, -float(mc.time_s[np.argmax(wave > 1e-3 * wave.max())]))
-            ref[k] = min(lead / dt, n_taps / 3)
+            # Put the return's centroid where template 0 has its own (the window's middle):
+            # with equal sums of taps, all templates then delay a slowly varying input (the
+            # water column) alike, and a template switch leaves the filter output continuous.
+            # The unscattered echo time lands at ref[k]; the depth stage uses it.
+            if not np.sum(wave) > 0:
+                raise ValueError(f"the Monte Carlo run returned no bottom photons at "
+                                 f"{depths[k]:.1f} m; raise mc_packets (given {mc_packets})")
+            centroid_s = float(np.sum(mc.time_s * wave) / np.sum(wave))
+            ref[k] = float(np.clip(c0 - centroid_s / dt, 0.0, n_taps - 1))
             templates[k] = np.interp((j - ref[k]) * dt, mc.time_s, wave, left=0.0, right=0.0)
+            # share of the return's area the window holds (the rest is the tail cut off)
+            coverage[k] = min(1.0, templates[k].sum() * dt / (wave.sum() * step))
     bank = bank_from_templates(templates, ref, bank_id)
     return SceneBank(
         bank=bank,
@@ -305,6 +331,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         bin_len=max(1, round(width_m / m_per_sample)),
         out_shift=out_shift_for(bank, *x_range),
         snr_loss_db=quantization_snr_loss_db(templates, bank),
+        coverage=coverage,
     )
 
 

@@ -78,6 +78,8 @@ def register(sub) -> None:
                    help="stitch rule")
     p.add_argument("--fixed", action="store_true",
                    help="fixed matched filter (template 0 only) instead of the adaptive bank")
+    p.add_argument("--bottom-rule", type=int, choices=(0, 1, 2), default=2,
+                   help="0 latest peak (seed 000), 1 largest, 2 largest rise (default)")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("vectors", help="write golden input/output vectors of a stage")

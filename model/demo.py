@@ -9,6 +9,7 @@ made by ``firmware_host.coeffs`` from the scene's own pulse and its depth-depend
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -35,18 +36,22 @@ def _parse_depths(text: str) -> list[float]:
 
 
 def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "linear",
-              fixed: bool = False) -> list[dict]:
+              fixed: bool = False, bottom_rule: int = 2) -> list[dict]:
     """Run the sweep; one dict per depth with the statistics of the measured depths."""
     from firmware_host.coeffs import scene_bank
     from sim.scene import preset
     from sim.waveform import simulate
 
-    scene = preset(preset_name)
+    # A gate that opens 200 ns before the surface leaves room for 128-sample baseline and noise
+    # windows (noise_log2 = 7): short windows make a noisy threshold.
+    scene = dataclasses.replace(preset(preset_name), pre_surface_s=200e-9)
     if shots < 1:
         raise ValueError(f"--shots must be >= 1, not {shots!r}")
-    sb = scene_bank(scene, n_templates=1 if fixed else 8)
+    x_range = (-800, 24700) if mode == "linear" else (0, 765)
+    sb = scene_bank(scene, n_templates=1 if fixed else 8, n_taps=64, x_range=x_range)
     cfg = Config(stitch_mode=1 if mode == "linear" else 0, out_shift=sb.out_shift,
-                 bin_offset=sb.bin_offset, bin_len=sb.bin_len)
+                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, noise_log2=7,
+                 bottom_rule=bottom_rule)
     rows = []
     for i, d in enumerate(depths):
         res = simulate(scene, shots, seed + 1000 * i, depth_m=np.full(shots, float(d)))
@@ -83,11 +88,13 @@ def run_demo(args) -> int:
     """The ``albcap demo`` command: print the sweep as a table."""
     depths = _parse_depths(args.depths)
     kind = "fixed" if args.fixed else "depth-adaptive"
+    rule = ("latest", "largest", "largest rise")[args.bottom_rule]
     print(f"albcap demo: preset {args.preset}, {args.shots} shots per depth, stitch {args.mode}, "
-          f"{kind} matched filter (bit-exact model)")
+          f"{kind} matched filter, bottom rule {rule} (bit-exact model)")
     print(f"{'true m':>8} {'measured m':>11} {'bias cm':>8} {'std cm':>7} {'detected':>9} "
           f"{'us/frame':>9}")
-    for r in demo_rows(args.preset, depths, args.shots, args.seed, args.mode, args.fixed):
+    for r in demo_rows(args.preset, depths, args.shots, args.seed, args.mode, args.fixed,
+                       args.bottom_rule):
         if r["detected"]:
             print(f"{r['depth_m']:8.2f} {r['mean_m']:11.3f} {100 * r['bias_m']:8.1f} "
                   f"{100 * r['std_m']:7.1f} {r['detected'] / r['shots']:9.1%} "

@@ -61,7 +61,7 @@ def _q8(a, b, c):
 
 @numba.njit(cache=True, inline="always")
 def _detect_step(yf, n, s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr, W, P, n0,
-                 noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule):
+                 noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule, K, bin_offset, bin_len):
     """One sample of the detector (spec 5): windows, then the peak at ``n - 1``.
 
     Returns the updated state ``s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr``.
@@ -79,7 +79,10 @@ def _detect_step(yf, n, s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr, W, P,
     elif n > n0:
         m = n - 1  # y[m + 1] has just arrived: is m a peak?
         ym = yf[m]
-        if yf[m - 1] < ym and ym >= v and ym - mu > thr:
+        # k is non-decreasing in n, so k(m-1) == k(m+1) means one template for all three
+        if (yf[m - 1] < ym and ym >= v and ym - mu > thr
+                and _template(m - 1, s, K, bin_offset, bin_len)
+                == _template(m + 1, s, K, bin_offset, bin_len)):
             if s < 0:
                 s = m
                 vmin = ym
@@ -91,7 +94,7 @@ def _detect_step(yf, n, s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr, W, P,
                         b, best = m, ym
                 else:
                     rise = ym - vmin
-                    if b < 0 or rise > best:
+                    if rise > thr and (b < 0 or rise > best):
                         b, best = m, rise
         if s >= 0 and v < vmin:
             vmin = v
@@ -152,7 +155,7 @@ def _frames(x, h, regs, y, out):
             while n < hi:
                 s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr = _detect_step(
                     yf, n, s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr, W, P, n0,
-                    noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule)
+                    noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule, K, bin_offset, bin_len)
                 n += 1
                 if not had_surface and s >= 0 and n >= s + bin_offset:
                     break  # a surface just found: y[n..] needs other templates, redo them

@@ -180,8 +180,12 @@ def peak_detect(y, warmup: int, cfg: Config, templates=None) -> PeakResult:
         dev = np.abs(yy[:, W + P:n0].astype(np.int64) - mu[:, None]).sum(axis=1)
         mu, noise, thr = thresholds(mu_sum, dev, cfg)
         r, c = find_peaks_rows(yy, n0, N - 2, mu + thr)
+        if ft is not None:  # a peak's three samples must come from one template
+            tt = ft[lo:hi]
+            keep = tt[r, c - 1] == tt[r, c + 1]
+            r, c = r[keep], c[keep]
         found_s, s_n, (r, c) = first_and_rest(r, c, len(yy), cfg.min_sep)
-        found_b, b_n = pick_bottom(r, c, yy, len(yy), cfg.bottom_rule, s_n)
+        found_b, b_n = pick_bottom(r, c, yy, len(yy), cfg.bottom_rule, s_n, thr)
         cols["mu"][lo:hi], cols["noise"][lo:hi], cols["thr"][lo:hi] = mu, noise, thr
         cols["s"][lo:hi], cols["b"][lo:hi] = s_n, b_n
         fs[lo:hi], fb[lo:hi] = found_s, found_b
@@ -234,21 +238,25 @@ def first_and_rest(r, c, n_rows, min_sep):
     return found, s, (r[keep], c[keep])
 
 
-def pick_bottom(r, c, v, n_rows, rule, s=None):
+def pick_bottom(r, c, v, n_rows, rule, s=None, thr=None):
     """Bottom per row among candidates ``(r, c)`` (row-major): the latest (``rule`` 0), the
-    largest ``v[r, c]`` (1) or the largest rise ``v[r, c] - min(v[r, s[r]..c])`` (2), earliest
-    on a tie. ``s`` (R,) is each row's surface, needed by rule 2. Returns ``found``, ``n`` (R,).
+    largest ``v[r, c]`` (1) or, among those rising more than ``thr[r]`` above
+    ``min(v[r, s[r]..c])``, the largest rise (2); earliest on a tie. ``s`` and ``thr`` (R,)
+    are each row's surface and threshold, needed by rule 2. Returns ``found``, ``n`` (R,).
     """
     found = np.zeros(n_rows, bool)
     n = np.zeros(n_rows, np.int64)
+    if rule == 2 and len(r):
+        key = v[r, c].astype(np.int64) - running_min_from(v, s)[r, c]
+        ok = key > np.asarray(thr)[r]
+        r, c, key = r[ok], c[ok], key[ok]
     if len(r) == 0:
         return found, n
     if rule == 0:
         pick = np.flatnonzero(np.r_[r[1:] != r[:-1], True])
     else:
-        key = v[r, c].astype(np.int64)
-        if rule == 2:
-            key -= running_min_from(v, s)[r, c]
+        if rule == 1:
+            key = v[r, c].astype(np.int64)
         # sort by row, then key descending, then column: the first of each row wins
         order = np.lexsort((c, -key, r))
         rs = r[order]
@@ -297,7 +305,9 @@ def peak_detect_reference(y, warmup: int, cfg: Config, templates=None) -> PeakRe
         dev = int(np.abs(v[W + P:W + 2 * P] - (mu_sum >> cfg.noise_log2)).sum())
         mu, noise, thr = (int(t) for t in thresholds(np.int64(mu_sum), np.int64(dev), cfg))
         n = np.arange(W + 2 * P, N - 1)
-        peaks = n[(v[n - 1] < v[n]) & (v[n] >= v[n + 1]) & (v[n] - mu > thr)]
+        k = np.zeros(N, np.int64) if ft is None else ft[f]
+        peaks = n[(v[n - 1] < v[n]) & (v[n] >= v[n + 1]) & (v[n] - mu > thr)
+                  & (k[n - 1] == k[n + 1])]
         cols["mu"][f], cols["noise"][f], cols["thr"][f] = mu, noise, thr
         if len(peaks):
             fs[f], cols["s"][f] = True, peaks[0]
@@ -309,8 +319,11 @@ def peak_detect_reference(y, warmup: int, cfg: Config, templates=None) -> PeakRe
                 elif cfg.bottom_rule == 1:
                     cols["b"][f] = later[np.argmax(v[later])]
                 else:  # rise above min(v[s..n]); argmax takes the earliest on a tie
-                    vmin = np.minimum.accumulate(v[peaks[0]:])[later - peaks[0]]
-                    cols["b"][f] = later[np.argmax(v[later] - vmin)]
+                    rise = v[later] - np.minimum.accumulate(v[peaks[0]:])[later - peaks[0]]
+                    if (rise > thr).any():
+                        cols["b"][f] = later[np.argmax(np.where(rise > thr, rise, -1))]
+                    else:
+                        fb[f] = False
     return _assemble(y.reshape(-1, N), ft, cols, fs, fb, y.shape[:-1])
 
 
@@ -343,8 +356,9 @@ class PeakDetectStream:
         self._sums = np.zeros((2, F), np.int64)  # baseline sum, deviation sum
         self._mu = np.zeros(F, np.int64)
         self._bound = np.zeros(F, np.int64)  # mu + thr
+        self._thr = np.zeros(F, np.int64)
         self._last = np.zeros((F, 2), np.int64)  # y[n-2], y[n-1]
-        self._last_k = np.zeros((F, 1), np.int64)  # k[n-1]
+        self._last_k = np.zeros((F, 2), np.int64)  # k[n-2], k[n-1]
         self._cand = {key: (np.zeros(F, bool), np.zeros((F, 5), np.int64))  # n, a, b, c, k
                       for key in ("s", "b")}
         self._best = np.zeros(F, np.int64)  # the bottom's key: y (rule 1) or rise (rule 2)
@@ -377,14 +391,17 @@ class PeakDetectStream:
         if self.n <= W + 2 * P - 1 < self.n + c:  # noise window closes: threshold known
             mu, _, thr = thresholds(self._sums[0], self._sums[1], cfg)
             self._bound = mu + thr
+            self._thr = thr
         # centre samples n = self.n - 1 .. self.n + c - 2, each with both neighbours
         ext = np.concatenate([self._last, yy], axis=1)
         if c > 0:
             a, b, cc = ext[:, :c], ext[:, 1:c + 1], ext[:, 2:]
+            ek = np.concatenate([self._last_k, kk], axis=1)
             centre = np.arange(self.n - 1, self.n + c - 1)
-            m = (a < b) & (b >= cc) & (b > self._bound[:, None]) & (centre >= W + 2 * P)
-            self._update(m, centre, a, b, cc, np.concatenate([self._last_k, kk], axis=1)[:, :c])
-            self._last, self._last_k = ext[:, -2:], kk[:, -1:]
+            m = ((a < b) & (b >= cc) & (b > self._bound[:, None]) & (centre >= W + 2 * P)
+                 & (ek[:, :c] == ek[:, 2:]))  # one template for the three samples
+            self._update(m, centre, a, b, cc, ek[:, 1:c + 1])
+            self._last, self._last_k = ext[:, -2:], ek[:, -2:]
         self.n += c
 
     def _update(self, m, centre, a, b, c, k):
@@ -404,6 +421,7 @@ class PeakDetectStream:
             key = b
             if self.cfg.bottom_rule == 2:
                 key = b - self._running_min(centre, b, s_found, s_rec[:, 0])
+                ok &= key > self._thr[:, None]  # the bottom must stand out of the column
             vals = np.where(ok, key, np.iinfo(np.int64).min)
             i = np.argmax(vals, axis=1)  # first maximum: earliest on a tie
             take = ok.any(axis=1) & (~b_found | (vals[rows, i] > self._best))

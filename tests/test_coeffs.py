@@ -15,11 +15,24 @@ def templates(K=4, L=32):
 
 
 class TestQuantize:
-    def test_equal_energy_and_full_scale(self):
+    def test_equal_dc_gain_and_full_scale(self):
         b = coeffs.bank_from_templates(templates())
+        dc = b.coefs.astype(float).sum(axis=1)
+        assert np.ptp(dc) / dc.mean() < 1e-3
+        assert np.abs(b.coefs).max() == 32767  # the narrowest template uses the full range
+        # broader templates: less noise gain than template 0 for the same DC gain
+        e = np.linalg.norm(b.coefs.astype(float), axis=1)
+        assert np.all(np.diff(e) < 0)
+
+    def test_equal_energy_and_full_scale(self):
+        b = coeffs.bank_from_templates(templates(), normalize="energy")
         e = np.linalg.norm(b.coefs.astype(float), axis=1)
         assert np.ptp(e) / e.mean() < 1e-3
-        assert np.abs(b.coefs).max() == 32767  # the narrowest template uses the full range
+        assert np.abs(b.coefs).max() == 32767
+
+    def test_unknown_normalization(self):
+        with pytest.raises(ValueError, match="normalize must be 'dc' or 'energy', not 'peak'"):
+            coeffs.bank_from_templates(templates(), normalize="peak")
 
     def test_snr_loss_is_small_and_positive(self):
         t = templates()
@@ -41,8 +54,10 @@ class TestQuantize:
     def test_zero_template_refused(self):
         t = templates()
         t[2] = 0
-        with pytest.raises(ValueError, match="template 2 is all zeros"):
+        with pytest.raises(ValueError, match="template 2 is of zero sum"):
             coeffs.bank_from_templates(t)
+        with pytest.raises(ValueError, match="template 2 is all zeros"):
+            coeffs.bank_from_templates(t, normalize="energy")
 
     def test_too_many_templates(self):
         with pytest.raises(ValueError, match=r"templates must have shape \(K <= 16, L <= 64\)"):
@@ -104,3 +119,74 @@ class TestFiles:
         (tmp_path / "b.hex").write_text("0001\n")
         with pytest.raises(ValueError, match="must hold 1024 words, not 1"):
             coeffs.read_bank_hex(tmp_path / "b.hex", 1, 1)
+
+
+class TestSceneBank:
+    @staticmethod
+    @pytest.fixture(scope="class")
+    def made():
+        from sim.scene import preset
+
+        return coeffs.scene_bank(preset("seed000"), n_templates=4, n_taps=48, mc_packets=20000)
+
+    def test_geometry_and_registers(self, made):
+        assert made.bank.K == 4 and made.bank.L == 48
+        assert made.bin_depths_m[0] == 0 and np.all(np.diff(made.bin_depths_m) > 0)
+        # seed000 at 2 GS/s and 10 deg: 5.6 cm of depth per sample, template 1 from 3 m
+        assert made.bin_offset == round(3.0 / 0.05589)
+        assert 16 <= made.bin_offset and made.bin_len > 100
+        assert np.all(made.snr_loss_db < 1e-3)
+
+    def test_templates_share_dc_gain_and_centroid(self, made):
+        h = made.bank.coefs.astype(float)
+        dc = h.sum(axis=1)
+        assert np.ptp(dc) / dc.mean() < 1e-3
+        centroid = (h * np.arange(48)).sum(axis=1) / dc
+        whole = made.coverage > 0.95  # returns whose tail the window holds
+        assert whole.sum() >= 2
+        assert np.all(np.abs(centroid[whole] - 23.5) < 1.5)
+
+    def test_deeper_returns_are_broader_and_cut_off_tails_are_reported(self, made):
+        t = made.templates / made.templates.max(axis=1, keepdims=True)
+        width = (t > 0.5).sum(axis=1)
+        whole = made.coverage > 0.95
+        assert np.all(np.diff(width[whole]) >= 0) and width[whole][-1] > width[0]
+        assert made.coverage[-1] < made.coverage[1]  # the 34 m return outgrows 24 ns
+
+    def test_too_few_photon_packets_is_a_clear_error(self):
+        from sim.scene import preset
+
+        with pytest.raises(ValueError, match="returned no bottom photons at .* raise mc_packets"):
+            coeffs.scene_bank(preset("seed000"), n_templates=4, mc_packets=50)
+
+    def test_out_shift_cannot_saturate(self, made):
+        assert made.out_shift == coeffs.out_shift_for(made.bank, -800, 24700)
+
+
+class TestDemo:
+    def test_bit_exact_chain_measures_simulated_depths(self):
+        from model.demo import demo_rows
+
+        rows = demo_rows("seed000", [5.0, 10.0], shots=40, seed=2)
+        for r in rows:
+            assert r["detected"] == r["shots"]
+            assert abs(r["bias_m"]) < 0.10 and r["std_m"] < 0.05
+
+    def test_merged_surface_and_bottom_is_flagged_not_guessed(self):
+        from model.demo import demo_rows
+
+        (r,) = demo_rows("seed000", [0.5], shots=20, seed=2)
+        assert r["detected"] == 0  # 0.5 m: one return, no confident wrong depth
+
+    def test_command(self, capsys):
+        from firmware_host.cli import main
+
+        assert main(["demo", "--depths", "5", "--shots", "10"]) == 0
+        out = capsys.readouterr().out
+        assert "true m" in out and "5.00" in out
+
+    def test_bad_depths(self, capsys):
+        from firmware_host.cli import main
+
+        assert main(["demo", "--depths", "5,x"]) == 2
+        assert "--depths must be comma-separated numbers of metres" in capsys.readouterr().err

@@ -76,6 +76,9 @@ class TestPeakDetect:
         if len(peaks):
             assert res.surface.n == peaks[0]
             later = peaks[peaks >= peaks[0] + cfg.min_sep]
+            if rule == 2:  # only peaks rising more than thr above the column count
+                later = np.array([p for p in later
+                                  if y[p] - y[peaks[0]:p + 1].min() > int(res.threshold)], int)
             assert bool(res.bottom.found) == (len(later) > 0)
             if len(later):
                 if rule == 0:
@@ -146,6 +149,24 @@ class TestPeakDetect:
         got = {rule: int(peak_detect(y, 0, Config(noise_log2=2, min_thr=100, bottom_rule=rule,
                                                   min_sep=5)).bottom.n) for rule in (0, 1, 2)}
         assert got == {0: 170, 1: 30, 2: 122}
+
+    def test_a_step_at_a_template_switch_is_not_a_peak(self):
+        # a decaying column filtered with template 0, then from n = 50 with template 1, which
+        # answers it 5 % higher: the step makes y[49] < y[50] > y[51]
+        n = np.arange(100)
+        y = np.where(n > 12, 10000 * np.exp(-(n - 12) / 40.0), 0.0)  # flat 0 before: thr 100
+        y[50:] *= 1.05
+        y[12] = 20000  # surface
+        y = np.rint(y).astype(np.int32)
+        k = (n >= 50).astype(np.int64)
+        cfg = Config(noise_log2=2, min_thr=100, min_sep=5)
+        assert int(peak_detect(y, 0, cfg).bottom.n) == 50  # without the template rule
+        for impl in (peak_detect, peak_detect_reference):
+            assert not impl(y, 0, cfg, k).bottom.found
+        stream = PeakDetectStream(0, cfg)
+        stream.feed(y[:50], k[:50])
+        stream.feed(y[50:], k[50:])
+        assert not stream.end_frame().bottom.found
 
     def test_rise_rule_ties_take_the_earliest(self):
         y = frame(90, 0, [(20, 900), (40, 500), (60, 500)])
