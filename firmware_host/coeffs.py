@@ -234,6 +234,10 @@ class SceneBank:
         Register: the smallest shift that cannot saturate for the stitched range given.
     snr_loss_db : float64 ndarray, shape (K,)
         Matched-filter SNR lost to quantization, dB.
+    min_thr : int
+        Register: a threshold floor of six standard deviations of the filtered ADC noise floor
+        (``adc_noise_lsb`` through template 0), so that a frame whose noise window happens to
+        look quiet cannot drop the threshold into the noise.
     coverage : float64 ndarray, shape (K,)
         Share of each expected return's area inside the ``L``-tap window (1 for template 0).
         Well below 1, the return's tail is cut off and its centroid can no longer be placed
@@ -247,12 +251,14 @@ class SceneBank:
     bin_len: int
     out_shift: int
     snr_loss_db: np.ndarray
+    min_thr: int
     coverage: np.ndarray
 
 
 def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
                x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
-               mc_packets: int = 20000, mc_seed: int = 4242) -> SceneBank:
+               mc_packets: int = 20000, mc_seed: int = 4242,
+               adc_noise_lsb: float = 0.5) -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
@@ -276,6 +282,9 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         Range of the stitched input, for the output shift (default: the linear rule's).
     mc_packets, mc_seed : int
         Photon packets per leg and seed of the Monte Carlo run.
+    adc_noise_lsb : float
+        Noise of the stitched input that is always there (ADC noise and quantization), LSB rms,
+        for ``min_thr``.
     """
     from sim.optics import refracted_angle
 
@@ -323,14 +332,17 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
             # share of the return's area the window holds (the rest is the tail cut off)
             coverage[k] = min(1.0, templates[k].sum() * dt / (wave.sum() * step))
     bank = bank_from_templates(templates, ref, bank_id)
+    shift = out_shift_for(bank, *x_range)
+    sigma_y = adc_noise_lsb * float(np.linalg.norm(bank.coefs[0].astype(np.float64))) / 2**shift
     return SceneBank(
         bank=bank,
         templates=templates,
         bin_depths_m=depths,
         bin_offset=max(16, round(first_bin_m / m_per_sample)),
         bin_len=max(1, round(width_m / m_per_sample)),
-        out_shift=out_shift_for(bank, *x_range),
+        out_shift=shift,
         snr_loss_db=quantization_snr_loss_db(templates, bank),
+        min_thr=int(np.ceil(6 * sigma_y)),
         coverage=coverage,
     )
 

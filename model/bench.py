@@ -13,6 +13,7 @@ from __future__ import annotations
 import resource
 import time
 
+import numba
 import numpy as np
 
 from .chain import run_chain, run_chain_reference
@@ -98,5 +99,6 @@ def bench_chain(n_frames: int = 4096, n_samples: int = 2048, K: int = 8, L: int 
         "frames_with_surface": int(fast.peaks.surface.found.sum()),
         "frames_with_bottom": int(fast.peaks.bottom.found.sum()),
         "peak_rss_mb": round(_peak_rss_mb(), 1),
+        "threads": numba.get_num_threads(),
         "real_time_factor_10khz": round(fps / 10_000, 2),
     }

@@ -50,7 +50,7 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
     x_range = (-800, 24700) if mode == "linear" else (0, 765)
     sb = scene_bank(scene, n_templates=1 if fixed else 8, n_taps=64, x_range=x_range)
     cfg = Config(stitch_mode=1 if mode == "linear" else 0, out_shift=sb.out_shift,
-                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, noise_log2=7,
+                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, noise_log2=7, min_thr=sb.min_thr,
                  bottom_rule=bottom_rule)
     rows = []
     for i, d in enumerate(depths):

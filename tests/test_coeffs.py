@@ -121,13 +121,14 @@ class TestFiles:
             coeffs.read_bank_hex(tmp_path / "b.hex", 1, 1)
 
 
-class TestSceneBank:
-    @staticmethod
-    @pytest.fixture(scope="class")
-    def made():
-        from sim.scene import preset
+@pytest.fixture(scope="module")
+def made():
+    from sim.scene import preset
 
-        return coeffs.scene_bank(preset("seed000"), n_templates=4, n_taps=48, mc_packets=20000)
+    return coeffs.scene_bank(preset("seed000"), n_templates=4, n_taps=48, mc_packets=20000)
+
+
+class TestSceneBank:
 
     def test_geometry_and_registers(self, made):
         assert made.bank.K == 4 and made.bank.L == 48
