@@ -130,6 +130,21 @@ class TestGateStream:
         assert f.header["coarse_event"].tolist() == [1]
 
 
+class TestGateLengths:
+    @pytest.mark.parametrize("n", [1, 2, 2047, 2048, 2049, 4095, 4096])
+    def test_lengths_around_powers_of_two_and_the_maximum(self, n):
+        cfg = Config(gate_delay=5, gate_len=n)
+        clocks = 3 * (n + 5) + 10
+        trig = np.zeros(clocks, bool)
+        trig[[0, n + 5, n + 6]] = True  # the second is on the clock after the gate; then retrigger
+        x = np.arange(clocks) % 30000
+        f = gate(x, trig, np.zeros(clocks, bool), cfg)
+        assert f.payload.shape == (2, n)
+        np.testing.assert_array_equal(f.payload[1], x[n + 10:2 * n + 10])
+        assert f.header["flags"].tolist() == [0, FrameFlag.RETRIGGER]
+        assert f.header["length"].tolist() == [n, n]
+
+
 class TestCounters:
     def test_fine_counter_saturates_and_flags(self):
         # 2^24 clocks would take long to feed; fine_div = 1 and a long idle chunk do it cheaply
