@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "model.cli",
     "sim.cli",
     "hdl.cli",
+    "firmware_host.commands",
 )
 
 
