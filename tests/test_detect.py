@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from peak_asserts import assert_same
 
 from model.detect import (
     FilterDetectStream,
@@ -19,16 +20,6 @@ from model.peak_detect import peak_detect
 from model.registers import Config
 
 SETTINGS = settings(derandomize=True, deadline=None, max_examples=30)
-FIELDS = ("found", "n", "position_q8", "amplitude", "template")
-
-
-def assert_same(r1, r2):
-    for name in ("mu", "noise", "threshold"):
-        assert np.array_equal(getattr(r1, name), getattr(r2, name)), name
-    for kind in ("surface", "bottom"):
-        for name in FIELDS:
-            a, b = getattr(getattr(r1, kind), name), getattr(getattr(r2, kind), name)
-            assert np.array_equal(a, b), (kind, name)
 
 
 def echo_case(seed, B=6, N=None, K=None, L=None):

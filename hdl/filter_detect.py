@@ -1,0 +1,93 @@
+"""The matched filter and the peak detector joined, the surface fed back (spec sections 4, 5).
+
+The HDL twin of :func:`model.detect.filter_and_detect`: :class:`~hdl.matched_filter.MatchedFilter`
+feeds :class:`~hdl.peak_detect.PeakDetect` and, through a stream fork, the ``y`` output (the
+``filtered`` payload); the detector's surface message goes straight back to the filter.
+
+Feedback bound. The detector accepts ``y[s + 1]`` on some clock edge ``T`` and raises the surface
+message after it; the filter takes it at edge ``T + 1``, and it acts on samples accepted after
+that edge. Between the filter's input and the detector's input sit at most
+``hdl.matched_filter.LATENCY`` samples (one per pipeline register; a stall holds them, it never
+adds any), so by edge ``T + 1`` the filter has accepted samples up to ``s + 2 + LATENCY`` at the
+most, all of them before the surface was known. They must all still use template 0, so the join
+is exact for ``bin_offset >= LATENCY + 3 = 10``; the register's floor of 16 leaves 6 samples of
+slack (room for 6 more pipeline registers in the filter or between the stages). Tested at
+``bin_offset = 16`` with surfaces on plain, idle and back-pressured traffic.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Module
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.matched_filter import K_MAX, L_MAX
+
+from .layouts import config_signature
+from .matched_filter import COEF_WRITE, FILTER_IN, FILTER_OUT, LATENCY, MatchedFilter
+from .peak_detect import PEAK_RESULT, PeakDetect
+
+__all__ = ["MIN_BIN_OFFSET", "FilterDetect"]
+
+#: Smallest ``bin_offset`` for which the fed-back surface always arrives in time.
+MIN_BIN_OFFSET = LATENCY + 3
+
+
+class FilterDetect(wiring.Component):
+    """Filter and detector with the surface fed back; bit-exact to ``filter_and_detect``.
+
+    Attributes
+    ----------
+    i : In(stream.Signature(FILTER_IN))
+        Stitched samples with the frame markers.
+    y : Out(stream.Signature(FILTER_OUT))
+        The filter output of every sample (``y``, ``k``, markers).
+    o : Out(stream.Signature(PEAK_RESULT))
+        One result per frame (``mu``, ``noise``, ``thr``, surface and bottom records).
+    coef : In(stream.Signature(COEF_WRITE))
+        Coefficient writes, as :class:`~hdl.matched_filter.MatchedFilter`.
+    cfg_filter : In(config_signature("filter"))
+    cfg_peak : In(config_signature("peak"))
+    templates, taps : In
+        ``K`` and ``L`` of the bank.
+
+    Notes
+    -----
+    Latency: ``y`` as the filter (``LATENCY`` = 7 clocks); the result 10 clocks after the frame's
+    last ``y``. The fork passes a beat when both ``y`` and the detector take it, so ``y``
+    backpressure stalls the detector and the detector's frame-end wait stalls ``y``.
+    """
+
+    def __init__(self):
+        super().__init__({
+            "i": In(stream.Signature(FILTER_IN)),
+            "y": Out(stream.Signature(FILTER_OUT)),
+            "o": Out(stream.Signature(PEAK_RESULT)),
+            "coef": In(stream.Signature(COEF_WRITE)),
+            "cfg_filter": In(config_signature("filter")),
+            "cfg_peak": In(config_signature("peak")),
+            "templates": In(range(K_MAX + 1), init=1),
+            "taps": In(range(L_MAX + 1), init=L_MAX),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.filter = f = MatchedFilter()
+        m.submodules.detect = p = PeakDetect()
+        wiring.connect(m, wiring.flipped(self.i), f.i)
+        wiring.connect(m, wiring.flipped(self.coef), f.coef)
+        wiring.connect(m, wiring.flipped(self.o), p.o)
+        wiring.connect(m, p.surface, f.surface)
+        wiring.connect(m, wiring.flipped(self.cfg_filter), f.cfg)
+        wiring.connect(m, wiring.flipped(self.cfg_peak), p.cfg)
+        m.d.comb += [f.templates.eq(self.templates), f.taps.eq(self.taps),
+                     p.taps.eq(self.taps)]
+        # fork: a beat moves when both consumers take it
+        m.d.comb += [
+            self.y.payload.eq(f.o.payload),
+            p.i.payload.eq(f.o.payload),
+            self.y.valid.eq(f.o.valid & p.i.ready),
+            p.i.valid.eq(f.o.valid & self.y.ready),
+            f.o.ready.eq(self.y.ready & p.i.ready),
+        ]
+        return m

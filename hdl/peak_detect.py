@@ -1,0 +1,250 @@
+"""Peak detector: the HDL twin of :class:`model.peak_detect.PeakDetectStream` (spec section 5).
+
+Sample order, as :mod:`model.kernel` states it: the baseline and noise windows accumulate as
+the samples pass, a peak at ``n - 1`` is decided when ``y[n]`` arrives, the surface (first peak)
+is sent back to the filter at once, the bottom candidate is kept by one of the three rules, and
+at the frame's last sample the state is handed to a small sequential divider that computes the
+two sub-sample offsets while the next frame already streams in.
+
+Parabola without signs: with ``D = 2 den`` and ``q = floor((256 (c - a) + den) / D)`` in
+``-128..128``, ``q + 128 = floor(N' / D)`` with ``N' = 512 (b - a) + den > 0`` (``a < b`` at a
+peak), a 9-bit quotient of two positive numbers: nine restoring steps.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Module, Mux, Signal, signed, unsigned
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.layouts import PEAK_RECORD, PeakKind
+from model.matched_filter import L_MAX, OUT_WIDTH
+from model.peak_detect import NOISE_MAX
+from model.registers import by_name
+
+from .layouts import config_signature, struct_layout
+from .matched_filter import FILTER_OUT, N_WIDTH, SURFACE, TAG_WIDTH
+
+__all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "THR_WIDTH", "PeakDetect"]
+
+NOISE_WIDTH = NOISE_MAX.bit_length()
+#: ``thr = max(min_thr, (k_thr_q4 * noise) >> 4)`` at its largest.
+THR_WIDTH = max(by_name("min_thr").hi, (by_name("k_thr_q4").hi * NOISE_MAX) >> 4).bit_length()
+#: Restoring steps of the sub-sample divider (``q + 128`` in ``0..256``).
+DIVIDE_STEPS = 9
+_P_MAX_LOG2 = by_name("noise_log2").hi
+
+#: The detector's result for one frame: the window statistics and the two peak records
+#: (``PEAK_RECORD`` structs, all zero when absent, as ``PeakResult.records()`` gives them).
+PEAK_RESULT = data.StructLayout({
+    "mu": signed(OUT_WIDTH),
+    "noise": unsigned(NOISE_WIDTH),
+    "thr": unsigned(THR_WIDTH),
+    "surface": struct_layout(PEAK_RECORD),
+    "bottom": struct_layout(PEAK_RECORD),
+})
+
+_Y = signed(OUT_WIDTH)
+_KEY = signed(OUT_WIDTH + 2)  # y (rule 1) or a rise y - vmin (rule 2)
+
+
+class PeakDetect(wiring.Component):
+    """Noise level, surface and bottom of each frame of filter output, one sample per clock.
+
+    Bit-exact to :func:`model.peak_detect.peak_detect` with ``templates`` the ``k`` of each
+    input sample, for every bottom rule.
+
+    Attributes
+    ----------
+    i : In(stream.Signature(FILTER_OUT))
+        ``y`` (s24), its template ``k`` and the frame markers. A frame starts with ``first`` and
+        ends with ``last`` (a frame's state is cleared after its last sample).
+    o : Out(stream.Signature(PEAK_RESULT))
+        One beat per frame, in frame order: ``mu``, ``noise``, ``thr`` and the surface and
+        bottom records. A frame shorter than ``W + 2P + 2`` reports ``mu = noise = 0``,
+        ``thr = min_thr`` and no records, as the model.
+    surface : Out(stream.Signature(SURFACE))
+        The surface sample ``n`` and the frame's tag, valid from the clock after ``y[n + 1]``
+        is accepted until taken (the filter takes it at once). A later surface message
+        replaces one not yet taken.
+    cfg : In(config_signature("peak"))
+        ``noise_log2``, ``k_thr_q4``, ``min_thr``, ``min_sep``, ``bottom_rule``.
+    taps : In(unsigned(7))
+        ``L`` of the bank (``W = L - 1``), init ``L_MAX``.
+
+    Notes
+    -----
+    Latency: the surface message is valid 1 clock after ``y[s + 1]`` is accepted; the result
+    beat ``DIVIDE_STEPS + 1`` = 10 clocks after the frame's last sample is accepted. The input
+    takes one sample per clock except that a frame's last sample waits while the previous
+    frame's result is still being divided or not yet taken (``i.ready`` low): frames of at
+    least 11 samples never wait when ``o`` is always ready.
+
+    Window sums are exact (``P <= 256`` samples of s24); the threshold is registered one clock
+    after the noise window closes, and first used two samples later. Register changes inside a
+    frame give a mix of old and new rules: write them between frames.
+    """
+
+    def __init__(self):
+        super().__init__({
+            "i": In(stream.Signature(FILTER_OUT)),
+            "o": Out(stream.Signature(PEAK_RESULT)),
+            "surface": Out(stream.Signature(SURFACE)),
+            "cfg": In(config_signature("peak")),
+            "taps": In(unsigned(L_MAX.bit_length()), init=L_MAX),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, d = self.cfg, self.i.payload
+        accept = Signal()
+
+        # ---- frame state ----
+        n = Signal(N_WIDTH)  # index of the next sample
+        tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # frame 0 gets tag 0
+        mu_sum = Signal(signed(OUT_WIDTH + _P_MAX_LOG2))
+        dev_sum = Signal(unsigned(OUT_WIDTH + 1 + _P_MAX_LOG2))
+        mu = Signal(_Y)
+        noise = Signal(NOISE_WIDTH)
+        thr = Signal(THR_WIDTH)
+        y1, y2 = Signal(_Y), Signal(_Y)  # y[n-1], y[n-2]
+        k1, k2 = Signal.like(d.k), Signal.like(d.k)
+        rec = data.StructLayout({"found": 1, "n": N_WIDTH, "a": _Y, "b": _Y, "c": _Y,
+                                 "k": d.k.shape()})
+        srec, brec = Signal(rec), Signal(rec)
+        best = Signal(_KEY)
+        vmin = Signal(_Y)
+
+        # the threshold follows the noise register; it is read two samples after it is set
+        prod = (cfg.k_thr_q4 * noise) >> 4
+        m.d.sync += thr.eq(Mux(prod > cfg.min_thr, prod, cfg.min_thr))
+
+        W = self.taps - 1
+        P = Signal(range((1 << _P_MAX_LOG2) + 1))
+        m.d.comb += P.eq(1 << cfg.noise_log2)
+        v = d.y
+        in_mu = (n >= W) & (n < W + P)
+        in_dev = (n >= W + P) & (n < W + 2 * P)
+        mu_sum_nx = mu_sum + v
+        dev = Signal(unsigned(OUT_WIDTH + 1))
+        m.d.comb += dev.eq(Mux(v >= mu, v - mu, mu - v))
+        dev_sum_nx = dev_sum + dev
+        noise_full = dev_sum_nx >> cfg.noise_log2
+
+        # ---- the peak at n - 1, decided as y[n] arrives ----
+        is_peak = Signal()
+        m.d.comb += is_peak.eq((n > W + 2 * P) & (y2 < y1) & (y1 >= v) & (y1 - mu > thr)
+                               & (k2 == d.k))
+        srec_nx, brec_nx = Signal(rec), Signal(rec)
+        best_nx, vmin_nx = Signal(_KEY), Signal(_Y)
+        here = Signal(rec)
+        m.d.comb += [here.found.eq(1), here.n.eq(n - 1), here.a.eq(y2), here.b.eq(y1),
+                     here.c.eq(v), here.k.eq(k1)]
+        m.d.comb += [srec_nx.eq(srec), brec_nx.eq(brec), best_nx.eq(best), vmin_nx.eq(vmin)]
+        rise = Signal(_KEY)
+        m.d.comb += rise.eq(y1 - vmin)
+        new_surface = is_peak & ~srec.found
+        with m.If(new_surface):
+            m.d.comb += [srec_nx.eq(here), vmin_nx.eq(Mux(v < y1, v, y1))]
+        with m.Elif(srec.found):
+            m.d.comb += vmin_nx.eq(Mux(v < vmin, v, vmin))
+            with m.If(is_peak & (n - 1 >= srec.n + cfg.min_sep)):
+                with m.Switch(cfg.bottom_rule):
+                    with m.Case(0):
+                        m.d.comb += brec_nx.eq(here)
+                    with m.Case(1):
+                        with m.If(~brec.found | (y1 > best)):
+                            m.d.comb += [brec_nx.eq(here), best_nx.eq(y1)]
+                    with m.Default():
+                        with m.If((rise > thr) & (~brec.found | (rise > best))):
+                            m.d.comb += [brec_nx.eq(here), best_nx.eq(rise)]
+
+        # surface message: raised after the accepting edge, held until taken
+        with m.If(self.surface.ready):
+            m.d.sync += self.surface.valid.eq(0)
+        with m.If(accept & new_surface):
+            m.d.sync += [self.surface.valid.eq(1), self.surface.payload.n.eq(n - 1),
+                         self.surface.payload.tag.eq(tag)]
+
+        # ---- frame end: snapshot for the divider ----
+        busy = Signal()  # a result is being divided or waits to be taken
+        done = Signal()
+        m.d.comb += [
+            self.i.ready.eq(~d.last | ~busy | (done & self.o.ready)),
+            accept.eq(self.i.valid & self.i.ready),
+        ]
+        long = Signal()  # the frame reaches W + 2P + 2 samples (n is its last index here)
+        m.d.comb += long.eq(n >= W + 2 * P + 1)
+
+        fin_mu, fin_noise, fin_thr = Signal(_Y), Signal(NOISE_WIDTH), Signal(THR_WIDTH)
+        div = data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": d.k.shape(),
+                                 "rem": unsigned(OUT_WIDTH + 12),
+                                 "dsh": unsigned(OUT_WIDTH + 12),
+                                 "q": unsigned(DIVIDE_STEPS)})
+        fins = [Signal(div, name="fin_s"), Signal(div, name="fin_b")]
+        step = Signal(range(DIVIDE_STEPS + 1))
+
+        with m.If(self.o.valid & self.o.ready):
+            m.d.sync += [busy.eq(0), done.eq(0), self.o.valid.eq(0)]
+
+        with m.If(accept):
+            with m.If(d.first):
+                m.d.sync += tag.eq(tag + 1)
+            m.d.sync += [n.eq(n + 1), y2.eq(y1), y1.eq(v), k2.eq(k1), k1.eq(d.k),
+                         srec.eq(srec_nx), brec.eq(brec_nx), best.eq(best_nx),
+                         vmin.eq(vmin_nx)]
+            with m.If(in_mu):
+                m.d.sync += mu_sum.eq(mu_sum_nx)
+                with m.If(n == W + P - 1):
+                    m.d.sync += mu.eq(mu_sum_nx >> cfg.noise_log2)
+            with m.If(in_dev):
+                m.d.sync += dev_sum.eq(dev_sum_nx)
+                with m.If(n == W + 2 * P - 1):
+                    m.d.sync += noise.eq(Mux(noise_full > NOISE_MAX, NOISE_MAX, noise_full))
+            with m.If(d.last):
+                m.d.sync += [
+                    busy.eq(1), done.eq(0), step.eq(DIVIDE_STEPS),
+                    fin_mu.eq(Mux(long, mu, 0)), fin_noise.eq(Mux(long, noise, 0)),
+                    fin_thr.eq(Mux(long, thr, cfg.min_thr)),
+                    # the next frame starts from the reset state
+                    n.eq(0), mu_sum.eq(0), dev_sum.eq(0), mu.eq(0), noise.eq(0),
+                    srec.found.eq(0), brec.found.eq(0), best.eq(0), vmin.eq(0),
+                ]
+                for fin, r in zip(fins, (srec_nx, brec_nx), strict=True):
+                    den = 2 * r.b - r.a - r.c
+                    m.d.sync += [
+                        fin.found.eq(r.found & long), fin.n.eq(r.n), fin.b.eq(r.b),
+                        fin.k.eq(r.k), fin.q.eq(0),
+                        fin.rem.eq(512 * (r.b - r.a) + den),
+                        fin.dsh.eq((2 * den) << (DIVIDE_STEPS - 1)),
+                    ]
+
+        # ---- the divider: one restoring step per clock ----
+        with m.If(busy & ~done):
+            with m.If(step == 0):
+                m.d.sync += [done.eq(1), self.o.valid.eq(1)]
+            with m.Else():
+                m.d.sync += step.eq(step - 1)
+                for fin in fins:
+                    ge = fin.rem >= fin.dsh
+                    m.d.sync += [
+                        fin.rem.eq(Mux(ge, fin.rem - fin.dsh, fin.rem)),
+                        fin.q.eq((fin.q << 1) | ge),
+                        fin.dsh.eq(fin.dsh >> 1),
+                    ]
+
+        o = self.o.payload
+        m.d.comb += [o.mu.eq(fin_mu), o.noise.eq(fin_noise), o.thr.eq(fin_thr)]
+        lo, hi = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
+        for out, fin, kind in ((o.surface, fins[0], PeakKind.SURFACE),
+                               (o.bottom, fins[1], PeakKind.BOTTOM)):
+            amp = fin.b - fin_mu
+            with m.If(fin.found):
+                m.d.comb += [
+                    out.kind.eq(int(kind)),
+                    out.template.eq(fin.k),
+                    out.position_q8.eq((fin.n << 8) + fin.q - 128),
+                    out.amplitude.eq(Mux(amp < lo, lo, Mux(amp > hi, hi, amp))),
+                    out.noise.eq(fin_noise),
+                ]
+        return m
