@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 
-.PHONY: demo test lint bench clean-venv
+.PHONY: demo test lint bench synth clean-venv
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -24,6 +24,9 @@ lint: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(VENV)/bin/albcap bench model --json
+
+synth: $(VENV)/.installed
+	$(VENV)/bin/albcap hdl synth
 
 clean-venv:
 	rm -rf $(VENV)

@@ -48,6 +48,8 @@ class ParserCounters:
         Candidates rejected by the header CRC or a length beyond the maximum.
     bad_crc : int
         Candidates whose header was right but whose payload CRC was wrong.
+    truncated : int
+        Candidates abandoned by :meth:`PacketParser.idle` while still waiting for bytes.
     resyncs : int
         Runs of bytes discarded while hunting for a sync word.
     discarded_bytes : int
@@ -57,13 +59,14 @@ class ParserCounters:
     good: int = 0
     bad_header: int = 0
     bad_crc: int = 0
+    truncated: int = 0
     resyncs: int = 0
     discarded_bytes: int = 0
 
     @property
     def bad(self) -> int:
         """Candidates rejected for any reason."""
-        return self.bad_header + self.bad_crc
+        return self.bad_header + self.bad_crc + self.truncated
 
 
 class PacketParser:
@@ -79,6 +82,9 @@ class PacketParser:
     Notes
     -----
     Latency: a packet is returned by the :meth:`feed` call that supplies its last byte.
+    A packet cut short by the sender (a truncated frame, a device restarting mid-packet) holds
+    the packets behind it until enough bytes arrive to reject it by its CRC; on an idle line the
+    transport calls :meth:`idle`, which abandons it and delivers what follows at once.
     Known failure mode: a corrupted header whose CRC happens to match (odds 2^-16 per false
     sync word) makes the parser wait for up to ``max_payload`` bytes before the payload CRC
     rejects it; nothing is lost, as the bytes are then searched again.
@@ -110,10 +116,24 @@ class PacketParser:
 
     def feed(self, data) -> list[Packet]:
         """Add bytes; return the packets they completed, in order."""
-        buf = self._buf
-        buf += data
+        self._buf += data
+        return self._scan(0)
+
+    def idle(self) -> list[Packet]:
+        """The line went quiet: abandon a packet still waiting for bytes; return what follows.
+
+        Nothing more is coming for the held candidate, so it can never complete; the search
+        restarts one byte after its start, as after a CRC failure.
+        """
         out: list[Packet] = []
-        pos = 0
+        while len(self._buf) >= 2:
+            self.counters.truncated += 1
+            out += self._scan(1)
+        return out
+
+    def _scan(self, pos: int) -> list[Packet]:
+        buf = self._buf
+        out: list[Packet] = []
         garbage_from = 0  # start of the bytes not yet delivered nor discarded
         while True:
             i = buf.find(LINK_SYNC_BYTES, pos)

@@ -60,11 +60,23 @@ def _export(args) -> int:
     return 0
 
 
+def _synth(args) -> int:
+    from .synth import print_table, synth_all
+
+    res = synth_all(args.component, args.freq)
+    if args.json:
+        print(json.dumps(res, indent=1))
+    else:
+        print_table(res)
+    return 0
+
+
 def register(subparsers) -> None:
     """Add ``hdl`` and its actions to the ``albcap`` command's subparsers."""
     from .verilog import COMPONENTS
 
-    hdl = subparsers.add_parser("hdl", help="HDL: export Verilog and the register map")
+    hdl = subparsers.add_parser("hdl", help="HDL: export Verilog and the register map, "
+                                            "FPGA figures")
     actions = hdl.add_subparsers(dest="hdl_action", metavar="ACTION", required=True)
     exp = actions.add_parser(
         "export", help="write Verilog of every component and registers.json",
@@ -73,3 +85,11 @@ def register(subparsers) -> None:
     exp.add_argument("--component", action="append", choices=sorted(COMPONENTS),
                      help="export only this component (repeatable; default all)")
     exp.set_defaults(func=_export)
+    syn = actions.add_parser(
+        "synth", help="FPGA figures (fmax, LUTs, FFs, DSPs, BRAMs) for an ECP5-85, speed 6",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    syn.add_argument("--json", action="store_true", help="print one JSON object")
+    syn.add_argument("--component", action="append", choices=sorted(COMPONENTS),
+                     help="only this component (repeatable; default all)")
+    syn.add_argument("--freq", type=float, default=200.0, help="clock constraint, MHz")
+    syn.set_defaults(func=_synth)

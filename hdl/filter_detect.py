@@ -53,9 +53,10 @@ class FilterDetect(wiring.Component):
 
     Notes
     -----
-    Latency: ``y`` as the filter (``LATENCY`` = 7 clocks); the result ``RESULT_LATENCY`` = 11 clocks after the frame's
-    last ``y``. The fork passes a beat when both ``y`` and the detector take it, so ``y``
-    backpressure stalls the detector and the detector's frame-end wait stalls ``y``.
+    Latency: ``y`` as the filter (``LATENCY`` = 7 clocks); the result ``RESULT_LATENCY`` = 11
+    clocks after the frame's last ``y``. The fork passes a beat when both ``y`` and the detector
+    take it, so ``y`` backpressure stalls the detector and the detector's frame-end wait stalls
+    ``y``.
     """
 
     def __init__(self):

@@ -43,8 +43,26 @@ def _gate():
     return Gate()
 
 
+def _matched_filter():
+    from .matched_filter import MatchedFilter
+    return MatchedFilter()
+
+
+def _peak_detect():
+    from .peak_detect import PeakDetect
+    return PeakDetect()
+
+
+def _filter_detect():
+    from .filter_detect import FilterDetect
+    return FilterDetect()
+
+
 #: Exported components by module name, each with its production parameters.
 COMPONENTS = {
     "albcap_stitch": _stitch,
     "albcap_gate": _gate,
+    "albcap_matched_filter": _matched_filter,
+    "albcap_peak_detect": _peak_detect,
+    "albcap_filter_detect": _filter_detect,
 }

@@ -170,7 +170,7 @@ def check(res, case: Case):
         assert bad.size == 0, (f"{bad.size} mismatches of {name}, first at {bad[0]}: "
                                f"{got[name][bad[0]]} vs model {want[bad[0]]}")
     lengths = [len(f) for f in case.frames]
-    starts = np.cumsum([0] + lengths[:-1])
+    starts = np.cumsum([0, *lengths[:-1]])
     first = np.zeros(len(y), bool)
     first[starts] = True
     last = np.zeros(len(y), bool)

