@@ -356,16 +356,15 @@ def map_chunks(fn, n_items: int, per_chunk: int) -> None:
         fut.result()
 
 
-def filter_frames(x, bank, cfg, align, start, y, frames=None, on_chunk=None) -> None:
-    """Compute ``y[f, start[f]:]`` for the int16 frames ``x[f]`` (N samples), ``f`` in ``frames``
-    (default: all rows); ``align[f] = s + bin_offset`` (``-1``: no surface).
+def filter_frames(x, bank, cfg, align, start, y) -> None:
+    """Compute ``y[f, start[f]:]`` for the int16 frames ``x[f]`` (N samples);
+    ``align[f] = s + bin_offset`` (``-1``: no surface).
 
     Frames are sorted by ``align`` so that each chunk, shifted to put ``align`` in one column,
-    wastes little padding. ``on_chunk(rows, ybuf, c0, offset)`` sees each chunk's aligned
-    output ``ybuf = y + offset`` (buffer column ``c`` is sample ``c - c0 + align[f]``).
+    wastes little padding (buffer column ``c`` is sample ``c - c0 + align[f]``).
     """
     N = x.shape[1]
-    frames = np.arange(x.shape[0]) if frames is None else np.asarray(frames)
+    frames = np.arange(x.shape[0])
     plan = Plan.of(bank, cfg.out_shift)
     M, H = plan.M, bank.L - 1
     order = frames[np.argsort(align[frames], kind="stable")]  # no surface (-1) first
@@ -386,7 +385,5 @@ def filter_frames(x, bank, cfg, align, start, y, frames=None, on_chunk=None) -> 
         filter_rows(xs, plan, c0, cfg.bin_len, ybuf)
         for i, (f, ai, si) in enumerate(zip(rows.tolist(), a.tolist(), st.tolist(), strict=True)):
             np.subtract(ybuf[i, si + c0 - ai:N + c0 - ai], plan.offset, out=y[f, si:])
-        if on_chunk is not None:
-            on_chunk(rows, ybuf, c0, plan.offset)
 
     map_chunks(work, len(order), max(1, _CHUNK_SAMPLES // max(N, 1)))
