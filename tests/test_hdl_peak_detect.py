@@ -15,12 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from test_hdl_matched_filter import verilator_pch_fix
 
 from hdl.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.matched_filter import FILTER_OUT, SURFACE, frame_tags
 from hdl.peak_detect import PEAK_RESULT, RESULT_LATENCY, PeakDetect
-from hdl.streams import PLAIN, TRAFFIC
+from hdl.streams import PLAIN, TRAFFIC, Pattern
 from model.bench import synthetic_codes, workload_bank
 from model.detect import filter_and_detect
 from model.layouts import PEAK_RECORD
@@ -28,8 +27,6 @@ from model.matched_filter import OUT_WIDTH, template_index
 from model.peak_detect import peak_detect
 from model.registers import Config
 from model.stitch import stitch_config
-
-verilator_pch_fix()
 
 Y_LO, Y_HI = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
 
@@ -221,3 +218,16 @@ def test_bottom_rules_differ():
         picks.add(tuple(int(peak_detect(y, L - 1, c, k).bottom.n) for y, k in
                         zip(ys, ks, strict=True)))
     assert len(picks) == 3
+
+
+def test_verilator_slow_result_sink(tmp_path):
+    """A result sink that takes one beat every 300 clocks: frame ends wait, nothing is lost."""
+    fr = frames_for("rule2")
+    slow = Pattern("periodic", on=1, off=300)
+    res = run(Design(PeakDetect), tmp_path, **traffic(fr, PLAIN, slow),
+              label="peak_detect-rule2-slow")
+    assert not res.timeout and res.violations == {"o": 0, "surface": 0}
+    results = fr.results()
+    check_results(res.sinks["o"], results)
+    check_surfaces(res.sinks["surface"], results)
+    assert res.sources["i"]["stalls"] > 0
