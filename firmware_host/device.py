@@ -37,13 +37,13 @@ from model.registers import REGISTERS, by_name
 from .protocol import PacketParser
 
 __all__ = [
+    "IDLE_S",
     "BankVerifyError",
     "CommandError",
     "Device",
     "DeviceError",
     "DeviceTimeout",
     "Frame",
-    "IDLE_S",
     "PortError",
     "ProtocolError",
     "bank_image",
@@ -164,8 +164,13 @@ class Device:
             if not self._stop.is_set():
                 self._error = exc
 
+    @property
+    def is_open(self) -> bool:
+        """The port is open."""
+        return self._ser.is_open
+
     def close(self) -> None:
-        """Stop the reader and close the port."""
+        """Stop the reader and close the port (again: nothing happens)."""
         self._stop.set()
         self._thread.join(timeout=1.0)
         self._ser.close()
@@ -193,7 +198,10 @@ class Device:
         name = PacketType(ptype).name
         for _attempt in range(self.retries + 1):
             self._check_reader()
-            self._ser.write(pkt)
+            try:
+                self._ser.write(pkt)
+            except (serial.SerialException, OSError) as exc:
+                raise DeviceError(f"cannot write to port {self.port!r}: {exc}") from None
             deadline = time.monotonic() + self.timeout
             while (left := deadline - time.monotonic()) > 0:
                 try:

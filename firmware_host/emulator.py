@@ -16,6 +16,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import select
+import signal
+import subprocess
 import sys
 import threading
 import time
@@ -25,7 +27,7 @@ from pathlib import Path
 from model.device import LINE_SYNC_SHOTS, Device, SceneSource, reference_frames
 from model.gate import FINE_BITS
 
-__all__ = ["MAX_BACKLOG", "Emulator", "load_scene_arg", "make_device"]
+__all__ = ["MAX_BACKLOG", "Emulator", "load_scene_arg", "make_device", "spawn"]
 
 #: Bytes written by the device but not yet read by the host, at most.
 MAX_BACKLOG = 1 << 20
@@ -140,11 +142,37 @@ class Emulator:
         self.stop()
 
 
+def spawn(*args: str, timeout_s: float = 60.0):
+    """Start ``albcap emulate ARGS`` as a subprocess; return ``(process, pty path)``.
+
+    The caller ends it with ``process.send_signal(signal.SIGINT)``.
+    """
+    exe = Path(sys.executable).with_name("albcap")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "firmware_host.cli"]
+    proc = subprocess.Popen([*cmd, "emulate", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
+    path = proc.stdout.readline().strip() if ready else ""
+    if not path.startswith("/dev/"):
+        proc.kill()
+        _, err = proc.communicate()
+        raise RuntimeError(f"albcap emulate did not start: {err.strip() or path!r}")
+    return proc, path
+
+
 def run_emulate(args) -> int:
     """The ``albcap emulate`` command: print the port path, serve until interrupted."""
     dev = make_device(args.scene, baud=args.baud, prf_hz=args.prf, seed=args.seed,
                       pool=args.pool, fifo_bytes=args.fifo)
     emu = Emulator(dev)
+
+    def _interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    # Ctrl-C and a polite kill both end the service cleanly, even where a shell started us
+    # in the background with SIGINT ignored.
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
     print(emu.path, flush=True)
     print(f"albcap emulate: scene {args.scene}, {args.baud} baud, {args.prf:g} shots/s, "
           f"{dev.source.n_samples}-sample gate, FIFO {dev.fifo_bytes} bytes; Ctrl-C stops",

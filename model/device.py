@@ -25,8 +25,9 @@ import math
 
 import numpy as np
 
-from .chain import encode_frames, run_chain
+from .chain import run_chain
 from .gate import gate_events
+from .layouts import FRAME_HEADER, FrameFlag, FrameType, item_bytes
 from .link import (
     BANK_WORDS,
     BANK_WRITE_MAX,
@@ -41,7 +42,7 @@ from .link import (
 from .matched_filter import K_MAX, L_MAX, Bank
 from .registers import REGISTERS, Config
 
-__all__ = ["LINE_SYNC_SHOTS", "Device", "SceneSource"]
+__all__ = ["LINE_SYNC_SHOTS", "Device", "SceneSource", "encode_batch", "reference_frames"]
 
 #: Shots per scan line of the emulated scanner (a line sync every this many shots).
 LINE_SYNC_SHOTS = 100
@@ -86,7 +87,9 @@ class SceneSource:
         """
         idx = np.arange(first, first + n) % self.adc.shape[0]
         cols = np.minimum(np.arange(gate_delay, gate_delay + gate_len), self.n_samples - 1)
-        return self.adc[idx][:, :, cols]
+        # C order matters: model.stitch._select writes through reshape(-1), which copies
+        # (and loses the saturated samples) for the strided array that fancy indexing makes
+        return np.ascontiguousarray(self.adc[idx][:, :, cols])
 
 
 def reference_frames(source: SceneSource, cfg: Config, bank: Bank, first: int, n: int,
@@ -106,7 +109,36 @@ def reference_frames(source: SceneSource, cfg: Config, bank: Bank, first: int, n
     _, header = gate_events(trig, syncs, cfg, first_shot=first, bank_id=bank_id)
     header["coarse_event"] = (header["coarse_event"] + j0) % (1 << 24)
     adc = source.codes(first, n, cfg.gate_delay, cfg.gate_len)
-    return encode_frames(adc, run_chain(adc, bank, cfg), header, cfg)
+    return encode_batch(adc, run_chain(adc, bank, cfg), header, cfg)
+
+
+def encode_batch(adc, result, header: dict, cfg: Config) -> list[bytes]:
+    """``model.chain.encode_frames`` for a whole batch at once: the same bytes, faster.
+
+    ``encode_frames`` packs frame by frame (about 1 ms each), which would cap the emulator
+    near 1000 frames/s; here the headers are packed as one array and the payloads are sliced
+    from one buffer. ``tests/test_link_device.py`` checks that the bytes are identical.
+    """
+    ftype = FrameType(cfg.frame_type)
+    records, count = result.peaks.records()
+    b = result.stitched.shape[0]
+    flags = (np.asarray(header["flags"], np.int64)
+             | np.where(result.peaks.surface.found, int(FrameFlag.SURFACE), 0)
+             | np.where(result.peaks.bottom.found, int(FrameFlag.BOTTOM), 0))
+    if ftype == FrameType.RAW:
+        body = np.ascontiguousarray(np.swapaxes(adc, 1, 2)).reshape(b, -1)
+    elif ftype == FrameType.STITCHED:
+        body = result.stitched.astype("<i2").view(np.uint8).reshape(b, -1)
+    elif ftype == FrameType.FILTERED:
+        body = result.filtered.astype("<i4").view(np.uint8).reshape(b, -1)
+    else:
+        body = records.reshape(b, -1)
+    length = count if ftype == FrameType.PEAKS else np.full(b, result.stitched.shape[1])
+    fields = {k: np.asarray(v, np.int64) for k, v in header.items()}
+    fields.update(flags=flags, frame_type=np.full(b, int(ftype)), length=length)
+    heads = FRAME_HEADER.pack(**fields)
+    nbytes = np.asarray(length) * item_bytes(ftype)
+    return [heads[i].tobytes() + body[i, :nbytes[i]].tobytes() for i in range(b)]
 
 
 class Device:

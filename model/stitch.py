@@ -113,7 +113,8 @@ def _select(adc: np.ndarray, t: int, lut_l, lut_m, lut_h) -> np.ndarray:
     n = adc.shape[-1]
     d_h = adc[..., 2, :]
     # lut_h is code - offset in both modes (offset 0 for paper): exploit it.
-    out = d_h.astype(np.int16)
+    # C order whatever the input's layout: `flat` below must be a view, not a copy
+    out = d_h.astype(np.int16, order="C")
     offset = int(lut_h[0])
     if offset:
         out += np.int16(offset)

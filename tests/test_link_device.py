@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from firmware_host.protocol import PacketParser
-from model.device import Device, SceneSource, reference_frames
+from model.device import Device, SceneSource, encode_batch, reference_frames
 from model.link import BANK_WORDS, FIFO_BYTES, STATUS, ErrorCode, PacketType, encode_packet
 from model.matched_filter import L_MAX, Bank
 from model.registers import Config, by_name
@@ -105,7 +105,7 @@ class TestBank:
         h = Host(_device(source))
         coefs = np.arange(1, 3 * 8 + 1, dtype=np.int16).reshape(3, 8)
         crc = self._load(h, coefs)
-        wrong = ((int.from_bytes(crc, "little") ^ 1)).to_bytes(4, "little")
+        wrong = (int.from_bytes(crc, "little") ^ 1).to_bytes(4, "little")
         assert h.cmd(PacketType.BANK_COMMIT, b"\x03\x08" + wrong)[0] == ErrorCode.CRC_MISMATCH
         assert h.dev.bank_id == 0 and h.dev.bank.K == 1
         assert h.cmd(PacketType.BANK_COMMIT, b"\x11\x08" + crc)[0] == ErrorCode.BAD_VALUE
@@ -133,6 +133,7 @@ class TestFrames:
         h.run(1.0)
         n = dev.status()["shots"]
         assert 50 <= n <= 52 and dev.status()["frames_dropped"] == 0
+        assert source.codes(0, 2, 0, 9).flags["C_CONTIGUOUS"]  # see SceneSource.codes
         ref = reference_frames(source, dev.cfg, dev.bank, 0, n, dev.prf_clocks)
         assert h.frames == ref
 
@@ -162,6 +163,24 @@ class TestFrames:
         dev.receive(encode_packet(PacketType.START, 1))
         assert len(dev.advance(1.0)) == 11520
         assert dev.status()["fifo_capacity"] == FIFO_BYTES
+
+
+@pytest.mark.parametrize("frame_type", [0, 1, 2, 3])
+def test_encode_batch_is_encode_frames(source, frame_type):
+    from model.chain import encode_frames, run_chain
+    from model.gate import gate_events
+
+    rng = np.random.default_rng(frame_type)
+    coefs = rng.integers(-2000, 6000, (3, 24)).astype(np.int16)
+    bank = Bank(coefs)
+    cfg = Config(gate_len=source.n_samples, noise_log2=7, frame_type=frame_type, out_shift=13,
+                 bin_offset=40, bin_len=30)
+    adc = source.codes(0, 8, 0, cfg.gate_len)
+    res = run_chain(adc, bank, cfg)
+    _, header = gate_events(np.arange(8) * 5000, [0, 20000], cfg, first_shot=3, bank_id=9)
+    assert encode_batch(adc, res, header, cfg) == encode_frames(adc, res, header, cfg)
+    if frame_type == 3:
+        assert res.peaks.surface.found.any()
 
 
 def test_power_on_bank_is_one_unit_tap(source):

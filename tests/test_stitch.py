@@ -163,3 +163,18 @@ class TestStreaming:
         np.testing.assert_array_equal(np.concatenate(parts), whole)
         ones = [stitch(adc[:, i:i + 1], mode) for i in range(0, 1000, 97)]
         np.testing.assert_array_equal(np.concatenate(ones), whole[::97])
+
+
+class TestLayouts:
+    @pytest.mark.parametrize("mode", ["paper", "linear"])
+    def test_any_memory_layout_gives_the_same_result(self, mode):
+        # saturated samples are patched in place: that must work on strided and Fortran input
+        rng = np.random.default_rng(12)
+        adc = rng.integers(0, 256, (6, 3, 50)).astype(np.uint8)
+        adc[:, 2, ::3] = 255
+        want = stitch(adc, mode)
+        for other in (np.asfortranarray(adc), adc.transpose(2, 1, 0).copy().transpose(2, 1, 0),
+                      np.concatenate([adc, adc], axis=2)[:, :, ::2]):
+            np.testing.assert_array_equal(stitch(other, mode), stitch(np.ascontiguousarray(other),
+                                                                         mode))
+        np.testing.assert_array_equal(stitch(np.asfortranarray(adc), mode), want)
