@@ -14,6 +14,7 @@ $(VENV)/.installed: pyproject.toml
 
 demo: $(VENV)/.installed
 	$(VENV)/bin/albcap demo
+	$(VENV)/bin/albcap survey
 
 test: $(VENV)/.installed
 	$(VENV)/bin/ruff check .

@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "sim.cli",
     "hdl.cli",
     "firmware_host.commands",
+    "firmware_host.survey",
 )
 
 
