@@ -5,14 +5,14 @@ feeds :class:`~hdl.peak_detect.PeakDetect` and, through a stream fork, the ``y``
 ``filtered`` payload); the detector's surface message goes straight back to the filter.
 
 Feedback bound. The detector accepts ``y[s + 1]`` on some clock edge ``T`` and raises the surface
-message after it; the filter takes it at edge ``T + 1``, and it acts on samples accepted after
-that edge. Between the filter's input and the detector's input sit at most
-``hdl.matched_filter.LATENCY`` samples (one per pipeline register; a stall holds them, it never
-adds any), so by edge ``T + 1`` the filter has accepted samples up to ``s + 2 + LATENCY`` at the
-most, all of them before the surface was known. They must all still use template 0, so the join
-is exact for ``bin_offset >= LATENCY + 3 = 10``; the register's floor of 16 leaves 6 samples of
-slack (room for 6 more pipeline registers in the filter or between the stages). Tested at
-``bin_offset = 16`` with surfaces on plain, idle and back-pressured traffic.
+message ``SURFACE_LATENCY`` clocks later (its decision is pipelined); the filter takes it at edge
+``T + SURFACE_LATENCY``, and it acts on samples accepted after that edge. Between the filter's
+input and the detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one per
+pipeline register; a stall holds them, it never adds any), so by then the filter has accepted
+samples up to ``s + 1 + LATENCY + SURFACE_LATENCY`` at the most, all of them before the surface
+was known. They must all still use template 0, so the join is exact for
+``bin_offset >= LATENCY + SURFACE_LATENCY + 2 = 12``; the register's floor of 16 leaves 4 samples
+of slack. Tested at ``bin_offset = 16`` with surfaces on plain, idle and back-pressured traffic.
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ from model.matched_filter import K_MAX, L_MAX
 
 from .layouts import config_signature
 from .matched_filter import COEF_WRITE, FILTER_IN, FILTER_OUT, LATENCY, MatchedFilter
-from .peak_detect import PEAK_RESULT, PeakDetect
+from .peak_detect import PEAK_RESULT, SURFACE_LATENCY, PeakDetect
 
 __all__ = ["MIN_BIN_OFFSET", "FilterDetect"]
 
 #: Smallest ``bin_offset`` for which the fed-back surface always arrives in time.
-MIN_BIN_OFFSET = LATENCY + 3
+MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + 2
 
 
 class FilterDetect(wiring.Component):
@@ -53,7 +53,7 @@ class FilterDetect(wiring.Component):
 
     Notes
     -----
-    Latency: ``y`` as the filter (``LATENCY`` = 7 clocks); the result ``RESULT_LATENCY`` = 11
+    Latency: ``y`` as the filter (``LATENCY`` = 7 clocks); the result ``RESULT_LATENCY`` = 14
     clocks after the frame's last ``y``. The fork passes a beat when both ``y`` and the detector
     take it, so ``y`` backpressure stalls the detector and the detector's frame-end wait stalls
     ``y``.

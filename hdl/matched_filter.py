@@ -38,7 +38,7 @@ __all__ = [
 #: largest value (4096) samples, so every index and the count after the last fit.
 N_WIDTH = by_name("gate_len").width
 #: Bits of the frame tag that pairs a surface message with its frame. Frames in flight between
-#: the filter's input and the detector number at most ``LATENCY + 2`` (one sample each), far
+#: the filter's input and the detector number at most ``LATENCY + 4`` (one sample each), far
 #: below half the tag range, so "older" and "newer" are told apart modulo ``2^TAG_WIDTH``.
 TAG_WIDTH = 8
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.

@@ -1,10 +1,12 @@
 """Peak detector: the HDL twin of :class:`model.peak_detect.PeakDetectStream` (spec section 5).
 
 Sample order, as :mod:`model.kernel` states it: the baseline and noise windows accumulate as
-the samples pass, a peak at ``n - 1`` is decided when ``y[n]`` arrives, the surface (first peak)
-is sent back to the filter at once, the bottom candidate is kept by one of the three rules, and
-at the frame's last sample the state is handed to a small sequential divider that computes the
-two sub-sample offsets while the next frame already streams in.
+the samples pass, a peak at ``n - 1`` is decided after ``y[n]`` arrives, in three pipeline
+stages (the sample's comparisons; the threshold, rise and distance tests; the state update), the
+surface (first peak) is sent back to the filter from the last stage, the bottom candidate is kept
+by one of the three rules, and when the frame's last sample leaves the pipeline the state is
+handed to a small sequential divider that computes the two sub-sample offsets while the next
+frame already streams in.
 
 Parabola without signs: with ``D = 2 den`` and ``q = floor((256 (c - a) + den) / D)`` in
 ``-128..128``, ``q + 128 = floor(N' / D)`` with ``N' = 512 (b - a) + den > 0`` (``a < b`` at a
@@ -25,17 +27,20 @@ from model.registers import by_name
 from .layouts import config_signature, struct_layout
 from .matched_filter import FILTER_OUT, N_WIDTH, SURFACE, TAG_WIDTH
 
-__all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "RESULT_LATENCY", "THR_WIDTH",
-           "PeakDetect"]
+__all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "RESULT_LATENCY", "SURFACE_LATENCY",
+           "THR_WIDTH", "PeakDetect"]
 
 NOISE_WIDTH = NOISE_MAX.bit_length()
 #: ``thr = max(min_thr, (k_thr_q4 * noise) >> 4)`` at its largest.
 THR_WIDTH = max(by_name("min_thr").hi, (by_name("k_thr_q4").hi * NOISE_MAX) >> 4).bit_length()
 #: Restoring steps of the sub-sample divider (``q + 128`` in ``0..256``).
 DIVIDE_STEPS = 9
-#: Clocks from accepting a frame's last sample to its result beat being valid: the snapshot,
-#: the divider steps and the clock that raises ``o.valid``.
-RESULT_LATENCY = DIVIDE_STEPS + 2
+#: Clocks from accepting a frame's last sample to its result beat being valid: the three
+#: decision stages, the snapshot, the divider steps and the clock that raises ``o.valid``.
+RESULT_LATENCY = DIVIDE_STEPS + 5
+#: Clocks from accepting ``y[s + 1]`` to the surface message of the peak at ``s`` being valid
+#: (raised at the third edge: the decision's stage 3).
+SURFACE_LATENCY = 3
 _P_MAX_LOG2 = by_name("noise_log2").hi
 
 #: The detector's result for one frame: the window statistics and the two peak records
@@ -68,9 +73,9 @@ class PeakDetect(wiring.Component):
         bottom records. A frame shorter than ``W + 2P + 2`` reports ``mu = noise = 0``,
         ``thr = min_thr`` and no records, as the model.
     surface : Out(stream.Signature(SURFACE))
-        The surface sample ``n`` and the frame's tag, valid from the clock after ``y[n + 1]``
-        is accepted until taken (the filter takes it at once). A later surface message
-        replaces one not yet taken.
+        The surface sample ``n`` and the frame's tag, valid :data:`SURFACE_LATENCY` = 3 clocks
+        after ``y[n + 1]`` is accepted, until taken (the filter takes it at once). A later
+        surface message replaces one not yet taken.
     cfg : In(config_signature("peak"))
         ``noise_log2``, ``k_thr_q4``, ``min_thr``, ``min_sep``, ``bottom_rule``.
     taps : In(unsigned(7))
@@ -78,14 +83,16 @@ class PeakDetect(wiring.Component):
 
     Notes
     -----
-    Latency: the surface message is valid 1 clock after ``y[s + 1]`` is accepted; the result
-    beat :data:`RESULT_LATENCY` = 11 clocks after the frame's last sample is accepted. The input
-    takes one sample per clock except that a frame's last sample waits while the previous
-    frame's result is still being divided or not yet taken (``i.ready`` low): frames of at
-    least 11 samples never wait when ``o`` is always ready.
+    Latency: the surface message is valid :data:`SURFACE_LATENCY` = 3 clocks after ``y[s + 1]``
+    is accepted; the result beat :data:`RESULT_LATENCY` = 14 clocks after the frame's last
+    sample is accepted. The input takes one sample per clock except that a frame's last sample
+    waits while the previous frame's result is still being divided or not yet taken
+    (``i.ready`` low): frames of at least 14 samples never wait when ``o`` is always ready.
 
-    Window sums are exact (``P <= 256`` samples of s24); the threshold is registered one clock
-    after the noise window closes, and first used two samples later. Register changes inside a
+    Window sums are exact (``P <= 256`` samples of s24); ``noise`` is registered one clock after
+    the noise window closes and the product ``k_thr_q4 * noise`` one clock later, first compared
+    (as ``y - mu > min_thr`` and ``y - mu > prod >> 4``) in stage 2 of the sample two after the
+    window, one clock after it is accepted. Register changes inside a
     frame give a mix of old and new rules: write them between frames.
     """
 
@@ -119,9 +126,20 @@ class PeakDetect(wiring.Component):
         best = Signal(_KEY)
         vmin = Signal(_Y)
 
-        # the threshold follows the noise register; it is read two samples after it is set
-        prod = (cfg.k_thr_q4 * noise) >> 4
-        m.d.sync += thr.eq(Mux(prod > cfg.min_thr, prod, cfg.min_thr))
+        # thr = max(min_thr, prod >> 4) with the product k_thr_q4 * noise registered one clock
+        # after noise (noise one clock after the window closes, so prod is ready two clocks after
+        # the window's last sample, before stage 2 of the first candidate reads it). The
+        # decision compares against min_thr and prod >> 4 apart (x > max(a, b) is x > a and
+        # x > b); thr itself only goes into the result beat. noise and prod keep their value
+        # past the frame's end (the last sample's stage 3 still reads prod) until the next
+        # frame's window closes; fin_noise takes noise at the last sample.
+        prod = Signal(unsigned(len(cfg.k_thr_q4) + NOISE_WIDTH))
+        m.d.sync += prod.eq(cfg.k_thr_q4 * noise)
+        prod_thr = prod >> 4
+        m.d.sync += thr.eq(Mux(prod_thr > cfg.min_thr, prod_thr, cfg.min_thr))
+
+        def above_thr(x):
+            return (x > cfg.min_thr) & (x > prod_thr)
 
         W = self.taps - 1
         P = Signal(range((1 << _P_MAX_LOG2) + 1))
@@ -133,42 +151,81 @@ class PeakDetect(wiring.Component):
         dev = Signal(unsigned(OUT_WIDTH + 1))
         m.d.comb += dev.eq(Mux(v >= mu, v - mu, mu - v))
         dev_sum_nx = dev_sum + dev
-        noise_full = dev_sum_nx >> cfg.noise_log2
+        # the noise register loads from the closed window's sum one clock after its last sample
+        noise_load = Signal()
+        noise_full = dev_sum >> cfg.noise_log2
+        m.d.sync += noise_load.eq(0)
+        with m.If(noise_load):
+            m.d.sync += noise.eq(Mux(noise_full > NOISE_MAX, NOISE_MAX, noise_full))
 
-        # ---- the peak at n - 1, decided as y[n] arrives ----
-        is_peak = Signal()
-        m.d.comb += is_peak.eq((n > W + 2 * P) & (y2 < y1) & (y1 >= v) & (y1 - mu > thr)
-                               & (k2 == d.k))
-        srec_nx, brec_nx = Signal(rec), Signal(rec)
-        best_nx, vmin_nx = Signal(_KEY), Signal(_Y)
+        # ---- the peak at n - 1, decided in three clocked stages after y[n] is accepted ----
+        # Stage 1 (the accepting edge): the comparisons of the sample, from the input and the
+        # history. Stage 2 (one clock later): the threshold compare, the rise of rule 2 and the
+        # bottom distance, against the state as it stands. Stage 3 (two clocks later): the
+        # surface, bottom and running-minimum updates. A bottom candidate p = n - 1 lies at least
+        # two samples after the surface s (a peak at s + 1 is impossible, y[s] >= y[s + 1]), so
+        # the state stage 2 reads (updated up to y[n - 2] at least) already holds the surface,
+        # and its running minimum min(y[s..n - 2]) equals min(y[s..n - 1]) (y[n - 2] < y[n - 1]).
+        long = Signal()  # the frame reaches W + 2P + 2 samples (n is its last index here)
+        m.d.comb += long.eq(n >= W + 2 * P + 1)
         here = Signal(rec)
         m.d.comb += [here.found.eq(1), here.n.eq(n - 1), here.a.eq(y2), here.b.eq(y1),
                      here.c.eq(v), here.k.eq(k1)]
+        s1_valid, s1_lm, s1_kq, s1_cand = Signal(), Signal(), Signal(), Signal()
+        s1_last, s1_long = Signal(), Signal()
+        s1_dmu = Signal(signed(OUT_WIDTH + 1))
+        s1_here, s1_vmin0 = Signal(rec), Signal(_Y)
+        s1_tag = Signal.like(tag)
+        m.d.sync += s1_valid.eq(accept)
+        with m.If(accept):
+            m.d.sync += [
+                s1_lm.eq((y2 < y1) & (y1 >= v)), s1_kq.eq(k2 == d.k),
+                s1_cand.eq(n > W + 2 * P), s1_dmu.eq(y1 - mu),
+                s1_here.eq(here), s1_vmin0.eq(Mux(v < y1, v, y1)), s1_tag.eq(tag),
+                s1_last.eq(d.last), s1_long.eq(long),
+            ]
+
+        s2_valid, s2_peak, s2_sep = Signal(), Signal(), Signal()
+        s2_last, s2_long = Signal(), Signal()
+        s2_key = Signal(_KEY)  # y[n - 1] (rule 1) or its rise (rule 2)
+        s2_here, s2_vmin0 = Signal(rec), Signal(_Y)
+        s2_tag = Signal.like(tag)
+        m.d.sync += s2_valid.eq(s1_valid)
+        with m.If(s1_valid):
+            m.d.sync += [
+                s2_peak.eq(s1_lm & s1_kq & s1_cand & above_thr(s1_dmu)),
+                s2_sep.eq(s1_here.n >= srec.n + cfg.min_sep),
+                s2_key.eq(Mux(cfg.bottom_rule == 1, s1_here.b, s1_here.b - vmin)),
+                s2_here.eq(s1_here), s2_vmin0.eq(s1_vmin0), s2_tag.eq(s1_tag),
+                s2_last.eq(s1_last), s2_long.eq(s1_long),
+            ]
+
+        srec_nx, brec_nx = Signal(rec), Signal(rec)
+        best_nx, vmin_nx = Signal(_KEY), Signal(_Y)
         m.d.comb += [srec_nx.eq(srec), brec_nx.eq(brec), best_nx.eq(best), vmin_nx.eq(vmin)]
-        rise = Signal(_KEY)
-        m.d.comb += rise.eq(y1 - vmin)
-        new_surface = is_peak & ~srec.found
+        new_surface = s2_peak & ~srec.found
+        key = s2_key
         with m.If(new_surface):
-            m.d.comb += [srec_nx.eq(here), vmin_nx.eq(Mux(v < y1, v, y1))]
+            m.d.comb += [srec_nx.eq(s2_here), vmin_nx.eq(s2_vmin0)]
         with m.Elif(srec.found):
-            m.d.comb += vmin_nx.eq(Mux(v < vmin, v, vmin))
-            with m.If(is_peak & (n - 1 >= srec.n + cfg.min_sep)):
+            m.d.comb += vmin_nx.eq(Mux(s2_here.c < vmin, s2_here.c, vmin))
+            with m.If(s2_peak & s2_sep):
                 with m.Switch(cfg.bottom_rule):
                     with m.Case(0):
-                        m.d.comb += brec_nx.eq(here)
+                        m.d.comb += brec_nx.eq(s2_here)
                     with m.Case(1):
-                        with m.If(~brec.found | (y1 > best)):
-                            m.d.comb += [brec_nx.eq(here), best_nx.eq(y1)]
+                        with m.If(~brec.found | (key > best)):
+                            m.d.comb += [brec_nx.eq(s2_here), best_nx.eq(key)]
                     with m.Default():
-                        with m.If((rise > thr) & (~brec.found | (rise > best))):
-                            m.d.comb += [brec_nx.eq(here), best_nx.eq(rise)]
+                        with m.If(above_thr(key) & (~brec.found | (key > best))):
+                            m.d.comb += [brec_nx.eq(s2_here), best_nx.eq(key)]
 
-        # surface message: raised after the accepting edge, held until taken
+        # surface message: raised after the stage-3 edge, held until taken
         with m.If(self.surface.ready):
             m.d.sync += self.surface.valid.eq(0)
-        with m.If(accept & new_surface):
-            m.d.sync += [self.surface.valid.eq(1), self.surface.payload.n.eq(n - 1),
-                         self.surface.payload.tag.eq(tag)]
+        with m.If(s2_valid & new_surface):
+            m.d.sync += [self.surface.valid.eq(1), self.surface.payload.n.eq(s2_here.n),
+                         self.surface.payload.tag.eq(s2_tag)]
 
         # ---- frame end: snapshot for the divider ----
         busy = Signal()  # a result is being divided or waits to be taken
@@ -177,8 +234,6 @@ class PeakDetect(wiring.Component):
             self.i.ready.eq(~d.last | ~busy | (done & self.o.ready)),
             accept.eq(self.i.valid & self.i.ready),
         ]
-        long = Signal()  # the frame reaches W + 2P + 2 samples (n is its last index here)
-        m.d.comb += long.eq(n >= W + 2 * P + 1)
 
         fin_mu, fin_noise, fin_thr = Signal(_Y), Signal(NOISE_WIDTH), Signal(THR_WIDTH)
         div = data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": d.k.shape(),
@@ -186,7 +241,9 @@ class PeakDetect(wiring.Component):
                                  "dsh": unsigned(OUT_WIDTH + 12),
                                  "q": unsigned(DIVIDE_STEPS)})
         fins = [Signal(div, name="fin_s"), Signal(div, name="fin_b")]
+        end_long, end_valid = Signal(), Signal()
         step = Signal(range(DIVIDE_STEPS + 1))
+        run = Signal()
 
         with m.If(self.o.valid & self.o.ready):
             m.d.sync += [busy.eq(0), done.eq(0), self.o.valid.eq(0)]
@@ -194,39 +251,51 @@ class PeakDetect(wiring.Component):
         with m.If(accept):
             with m.If(d.first):
                 m.d.sync += tag.eq(tag + 1)
-            m.d.sync += [n.eq(n + 1), y2.eq(y1), y1.eq(v), k2.eq(k1), k1.eq(d.k),
-                         srec.eq(srec_nx), brec.eq(brec_nx), best.eq(best_nx),
-                         vmin.eq(vmin_nx)]
+            m.d.sync += [n.eq(n + 1), y2.eq(y1), y1.eq(v), k2.eq(k1), k1.eq(d.k)]
             with m.If(in_mu):
                 m.d.sync += mu_sum.eq(mu_sum_nx)
                 with m.If(n == W + P - 1):
                     m.d.sync += mu.eq(mu_sum_nx >> cfg.noise_log2)
             with m.If(in_dev):
                 m.d.sync += dev_sum.eq(dev_sum_nx)
-                with m.If(n == W + 2 * P - 1):
-                    m.d.sync += noise.eq(Mux(noise_full > NOISE_MAX, NOISE_MAX, noise_full))
+                m.d.sync += noise_load.eq(n == W + 2 * P - 1)
             with m.If(d.last):
                 m.d.sync += [
-                    busy.eq(1), done.eq(0), step.eq(DIVIDE_STEPS),
+                    busy.eq(1), done.eq(0),
                     fin_mu.eq(Mux(long, mu, 0)), fin_noise.eq(Mux(long, noise, 0)),
-                    fin_thr.eq(Mux(long, thr, cfg.min_thr)),
                     # the next frame starts from the reset state
-                    n.eq(0), mu_sum.eq(0), dev_sum.eq(0), mu.eq(0), noise.eq(0),
-                    srec.found.eq(0), brec.found.eq(0), best.eq(0), vmin.eq(0),
+                    n.eq(0), mu_sum.eq(0), dev_sum.eq(0), mu.eq(0),
                 ]
-                for fin, r in zip(fins, (srec_nx, brec_nx), strict=True):
-                    den = 2 * r.b - r.a - r.c
-                    m.d.sync += [
-                        fin.found.eq(r.found & long), fin.n.eq(r.n), fin.b.eq(r.b),
-                        fin.k.eq(r.k), fin.q.eq(0),
-                        fin.rem.eq(512 * (r.b - r.a) + den),
-                        fin.dsh.eq((2 * den) << (DIVIDE_STEPS - 1)),
-                    ]
+
+        # stage 3: the state update. The clock after the frame's last sample updates it, the
+        # divider loads both records from the state registers and the state is cleared (this
+        # overrides the stage-3 update of the next frame's first sample, which is never a peak
+        # and changes only vmin).
+        m.d.sync += end_valid.eq(0)
+        with m.If(s2_valid):
+            m.d.sync += [srec.eq(srec_nx), brec.eq(brec_nx), best.eq(best_nx),
+                         vmin.eq(vmin_nx)]
+            with m.If(s2_last):
+                m.d.sync += [
+                    end_valid.eq(1), end_long.eq(s2_long),
+                    fin_thr.eq(Mux(s2_long, thr, cfg.min_thr)),
+                ]
+        with m.If(end_valid):
+            m.d.sync += [run.eq(1), step.eq(DIVIDE_STEPS),
+                         srec.found.eq(0), brec.found.eq(0), best.eq(0), vmin.eq(0)]
+            for fin, r in zip(fins, (srec, brec), strict=True):
+                den = 2 * r.b - r.a - r.c
+                m.d.sync += [
+                    fin.found.eq(r.found & end_long), fin.n.eq(r.n), fin.b.eq(r.b),
+                    fin.k.eq(r.k), fin.q.eq(0),
+                    fin.rem.eq(512 * (r.b - r.a) + den),
+                    fin.dsh.eq((2 * den) << (DIVIDE_STEPS - 1)),
+                ]
 
         # ---- the divider: one restoring step per clock ----
-        with m.If(busy & ~done):
+        with m.If(run):
             with m.If(step == 0):
-                m.d.sync += [done.eq(1), self.o.valid.eq(1)]
+                m.d.sync += [run.eq(0), done.eq(1), self.o.valid.eq(1)]
             with m.Else():
                 m.d.sync += step.eq(step - 1)
                 for fin in fins:
