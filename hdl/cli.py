@@ -1,7 +1,7 @@
 """``albcap hdl``: the HDL's command-line front end.
 
 ``albcap hdl export --out DIR`` writes the Verilog of every exported component
-(:data:`hdl.verilog.COMPONENTS`, production parameters) and the register map as JSON, for
+(:data:`hdl.export.COMPONENTS`, production parameters) and the register map as JSON, for
 engineers who build the digitizer outside this project.
 """
 
@@ -33,14 +33,14 @@ def export(out_dir, names=None) -> list[Path]:
     out_dir : path
         Created if missing; existing files of the same names are overwritten.
     names : list of str, optional
-        Component module names to export (default: all of :data:`hdl.verilog.COMPONENTS`).
+        Component module names to export (default: all of :data:`hdl.export.COMPONENTS`).
 
     Returns
     -------
     list of Path
         The files written.
     """
-    from .verilog import COMPONENTS, write_verilog
+    from .export import COMPONENTS, write_verilog
 
     names = list(COMPONENTS) if names is None else list(names)
     unknown = [n for n in names if n not in COMPONENTS]
@@ -73,7 +73,7 @@ def _synth(args) -> int:
 
 def register(subparsers) -> None:
     """Add ``hdl`` and its actions to the ``albcap`` command's subparsers."""
-    from .verilog import COMPONENTS
+    from .export import COMPONENTS
 
     hdl = subparsers.add_parser("hdl", help="HDL: export Verilog and the register map, "
                                             "FPGA figures")

@@ -79,7 +79,7 @@ class MatchedFilter(wiring.Component):
 
     Bit-exact to :func:`model.matched_filter.matched_filter` with the surface of each frame as
     reported on ``surface`` (and so to :func:`model.detect.filter_and_detect` when joined with
-    :class:`hdl.peak_detect.PeakDetect`, see :class:`hdl.filter_detect.FilterDetect`).
+    :class:`hdl.peak_detect.PeakDetect`, see :class:`hdl.detect.FilterDetect`).
 
     Attributes
     ----------
@@ -116,7 +116,7 @@ class MatchedFilter(wiring.Component):
     Template selection counts samples, with no divider: when the frame reaches sample
     ``s + bin_offset`` it switches to template 1 (``min(1, K - 1)``), then one template further
     every ``bin_len`` samples up to ``K - 1``. The surface must therefore arrive before the
-    filter accepts sample ``s + bin_offset``; :class:`~hdl.filter_detect.FilterDetect`
+    filter accepts sample ``s + bin_offset``; :class:`~hdl.detect.FilterDetect`
     documents the bound.
 
     Known failure modes: a surface that arrives too late (its switch sample already accepted)

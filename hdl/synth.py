@@ -54,7 +54,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int = 1, work_dir=No
     Parameters
     ----------
     name : str
-        A key of :data:`hdl.verilog.COMPONENTS` (e.g. ``"albcap_stitch"``).
+        A key of :data:`hdl.export.COMPONENTS` (e.g. ``"albcap_stitch"``).
     target_mhz : float
         Clock constraint given to nextpnr, MHz (the achieved fmax is reported either way).
     lanes : int
@@ -67,7 +67,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int = 1, work_dir=No
     dict
         ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds`` and the device.
     """
-    from .verilog import COMPONENTS, write_verilog
+    from .export import COMPONENTS, write_verilog
 
     if name not in COMPONENTS:
         raise ValueError(f"unknown component {name!r}; known: {sorted(COMPONENTS)}")
@@ -104,7 +104,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int = 1, work_dir=No
 
 def synth_all(names=None, target_mhz: float = 200.0) -> dict:
     """:func:`synthesize` every component; returns ``{"device": ..., "components": {...}}``."""
-    from .verilog import COMPONENTS
+    from .export import COMPONENTS
 
     names = sorted(COMPONENTS) if not names else list(names)
     return {"device": DEVICE,

@@ -9,8 +9,8 @@ import subprocess
 import pytest
 
 from hdl import cli
-from hdl.cosim import _verilator_on_path
-from hdl.verilog import COMPONENTS
+from hdl.export import COMPONENTS
+from hdl.tb.cosim import _verilator_on_path
 from model.registers import REGISTERS
 
 

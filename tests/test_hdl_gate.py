@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from hdl.amsim import simulate
-from hdl.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.gate import LATENCY, Gate
 from hdl.layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT
-from hdl.streams import BACKPRESSURE, PLAIN, TRAFFIC, Pattern
+from hdl.tb.amsim import simulate
+from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.tb.streams import BACKPRESSURE, PLAIN, TRAFFIC, Pattern
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS, GateStream
 from model.layouts import FRAME_HEADER, FrameFlag
 from model.registers import Config

@@ -14,7 +14,7 @@ from hdl.layouts import (
     flatten,
     struct_layout,
 )
-from hdl.streams import Pattern, load_bundle, pack, save_bundle, unpack
+from hdl.tb.streams import Pattern, load_bundle, pack, save_bundle, unpack
 from model.layouts import FRAME_HEADER, PEAK_RECORD
 from model.registers import REGISTERS
 

@@ -14,8 +14,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from hdl.amsim import simulate
-from hdl.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.matched_filter import (
     COEF_WRITE,
     FILTER_IN,
@@ -25,7 +23,9 @@ from hdl.matched_filter import (
     MatchedFilter,
     frame_tags,
 )
-from hdl.streams import PLAIN, TRAFFIC
+from hdl.tb.amsim import simulate
+from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.tb.streams import PLAIN, TRAFFIC
 from model.bench import synthetic_codes, workload_bank
 from model.detect import filter_and_detect
 from model.matched_filter import COEF_WIDTH, L_MAX, Bank, matched_filter, template_index

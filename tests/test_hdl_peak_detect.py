@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from hdl.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.matched_filter import FILTER_OUT, SURFACE, frame_tags
 from hdl.peak_detect import PEAK_RESULT, RESULT_LATENCY, PeakDetect
-from hdl.streams import PLAIN, TRAFFIC, Pattern
+from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.tb.streams import PLAIN, TRAFFIC, Pattern
 from model.bench import synthetic_codes, workload_bank
 from model.detect import filter_and_detect
 from model.layouts import PEAK_RECORD

@@ -12,11 +12,11 @@ import itertools
 import numpy as np
 import pytest
 
-from hdl.amsim import simulate
-from hdl.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.layouts import CODES, STITCHED
 from hdl.stitch import LATENCY, Stitch
-from hdl.streams import BACKPRESSURE, IDLE, PLAIN, TRAFFIC
+from hdl.tb.amsim import simulate
+from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.tb.streams import BACKPRESSURE, IDLE, PLAIN, TRAFFIC
 from model.registers import Config
 from model.stitch import CODE_MAX, stitch_config
 

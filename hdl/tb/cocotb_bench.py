@@ -1,6 +1,6 @@
 """A generic cocotb bench for stream components: drive sources, record sinks, check the protocol.
 
-The bench reads a bundle (:func:`hdl.streams.save_bundle`) named by the environment variable
+The bench reads a bundle (:func:`hdl.tb.streams.save_bundle`) named by the environment variable
 ``ALBCAP_BENCH_IN``: static input ports to set, beats to drive into each source stream with a
 valid pattern, a ready pattern for each sink stream. It writes what it saw to the bundle named by
 ``ALBCAP_BENCH_OUT``: every sink beat unpacked into fields with the clock it was taken on, the
@@ -25,7 +25,7 @@ import numpy as np
 from cocotb.clock import Clock
 from cocotb.triggers import RisingEdge
 
-from .layouts import FlatField
+from ..layouts import FlatField
 from .streams import (
     BENCH_IN_ENV,
     BENCH_OUT_ENV,

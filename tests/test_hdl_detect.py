@@ -1,4 +1,4 @@
-"""hdl.filter_detect.FilterDetect against model.detect.filter_and_detect: y, k and every record
+"""hdl.detect.FilterDetect against model.detect.filter_and_detect: y, k and every record
 field, with the surface fed back inside the hardware.
 
 Cases: echo-like frames at the smallest ``bin_offset`` (16, the feedback bound's test) with 16
@@ -14,11 +14,11 @@ import pytest
 from test_hdl_matched_filter import S16_HI, S16_LO, coef_source, sample_source
 from test_hdl_peak_detect import check_results
 
-from hdl.cosim import Design, Sink, cfg_ports, run
-from hdl.filter_detect import MIN_BIN_OFFSET, FilterDetect
+from hdl.detect import MIN_BIN_OFFSET, FilterDetect
 from hdl.matched_filter import FILTER_OUT, LATENCY
 from hdl.peak_detect import PEAK_RESULT, SURFACE_LATENCY
-from hdl.streams import TRAFFIC
+from hdl.tb.cosim import Design, Sink, cfg_ports, run
+from hdl.tb.streams import TRAFFIC
 from model.bench import synthetic_codes, workload_bank
 from model.detect import filter_and_detect
 from model.matched_filter import Bank, template_index

@@ -54,7 +54,7 @@ def _peak_detect():
 
 
 def _filter_detect():
-    from .filter_detect import FilterDetect
+    from .detect import FilterDetect
     return FilterDetect()
 
 

@@ -1,7 +1,7 @@
 """Stream traffic for testbenches: seeded valid/ready patterns, beat packing, bench files.
 
 Pure Python and numpy (no cocotb, no simulator), shared by the cocotb benches
-(:mod:`hdl.cocotb_bench`), the pytest side that prepares them (:mod:`hdl.cosim`) and the
+(:mod:`hdl.tb.cocotb_bench`), the pytest side that prepares them (:mod:`hdl.tb.cosim`) and the
 Amaranth-simulator tests. Every random choice comes from a seeded generator, so a failing run
 repeats exactly.
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .layouts import FlatField, flatten
+from ..layouts import FlatField, flatten
 
 __all__ = [
     "BACKPRESSURE",

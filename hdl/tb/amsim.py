@@ -1,7 +1,7 @@
-"""The same stream bench as :mod:`hdl.cocotb_bench`, in Amaranth's own simulator.
+"""The same stream bench as :mod:`hdl.tb.cocotb_bench`, in Amaranth's own simulator.
 
-:func:`simulate` takes the traffic description of :func:`hdl.cosim.run` (sources, sinks,
-static ports, patterns) and returns the same :class:`~hdl.cosim.BenchResult`, so a quick test
+:func:`simulate` takes the traffic description of :func:`hdl.tb.cosim.run` (sources, sinks,
+static ports, patterns) and returns the same :class:`~hdl.tb.cosim.BenchResult`, so a quick test
 of control logic and a Verilator bench read alike. It runs the Python model of the design, not
 the Verilog, at a few thousand clocks per second: keep its runs short.
 """
@@ -31,7 +31,7 @@ def port(component, name: str):
 def simulate(component, *, sources: dict, sinks: dict, static: dict | None = None, watch=(),
              max_clocks: int = 100_000, quiet_clocks: int = 32, vcd: str | None = None
              ) -> BenchResult:
-    """Run ``component`` in the Amaranth simulator with stream traffic; see :func:`hdl.cosim.run`.
+    """Run ``component`` in the Amaranth simulator with stream traffic (see ``hdl.tb.cosim.run``).
 
     ``vcd`` names a waveform file to write. Stream semantics and the end condition are those of
     the cocotb bench: a source holds an offered beat until taken, a run ends when the sources

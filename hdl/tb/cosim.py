@@ -4,7 +4,7 @@ One call, :func:`run`, turns a component and some traffic into a :class:`BenchRe
 generates the Verilog, builds it once per distinct design (cached on disk under ``build/hdl``,
 keyed by a hash of the Verilog, locked so parallel pytest workers share one build), writes the
 stimulus bundle, runs the generic bench (``tests/cocotb_streams.py`` over
-:mod:`hdl.cocotb_bench`) and loads what the sinks saw.
+:mod:`hdl.tb.cocotb_bench`) and loads what the sinks saw.
 
 Environment
 -----------
@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..export import to_verilog
 from .streams import (
     BENCH_IN_ENV,
     BENCH_OUT_ENV,
@@ -38,11 +39,10 @@ from .streams import (
     load_bundle,
     save_bundle,
 )
-from .verilog import to_verilog
 
 __all__ = ["BenchResult", "Design", "Sink", "Source", "build", "cfg_ports", "run"]
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 WAVES_ENV = "ALBCAP_WAVES"
 BENCH_MODULE = "cocotb_streams"
 BENCH_DIR = REPO / "tests"
