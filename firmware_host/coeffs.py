@@ -27,6 +27,7 @@ from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH, Bank
 
 __all__ = [
     "BANK_FORMAT",
+    "SURVEY_NOISE_LOG2",
     "SceneBank",
     "bank_from_templates",
     "gaussian_pulse",
@@ -36,8 +37,23 @@ __all__ = [
     "read_bank_hex",
     "save_bank_json",
     "scene_bank",
+    "survey_scene",
     "write_bank_hex",
 ]
+
+#: Baseline and noise windows of 2^7 = 128 samples each: shorter windows of filtered (hence
+#: correlated) noise give a threshold that swings from frame to frame.
+SURVEY_NOISE_LOG2 = 7
+#: Gate start before the surface echo that those windows need, with the filter's warm-up, s.
+SURVEY_PRE_SURFACE_S = 200e-9
+
+
+def survey_scene(scene):
+    """``scene`` with its gate opening early enough for ``SURVEY_NOISE_LOG2`` windows."""
+    import dataclasses
+
+    return dataclasses.replace(scene, pre_surface_s=SURVEY_PRE_SURFACE_S)
+
 
 #: ``format`` field of a bank JSON file.
 BANK_FORMAT = "albcap-bank-1"

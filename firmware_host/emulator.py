@@ -13,7 +13,6 @@ oldest are lost (the host's parser resynchronizes).
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import select
 import signal
@@ -26,6 +25,8 @@ from pathlib import Path
 
 from model.device import LINE_SYNC_SHOTS, Device, SceneSource, reference_frames
 from model.gate import FINE_BITS
+
+from .coeffs import SURVEY_NOISE_LOG2, survey_scene
 
 __all__ = ["MAX_BACKLOG", "Emulator", "load_scene_arg", "make_device", "spawn"]
 
@@ -48,17 +49,17 @@ def make_device(scene: str = "seed000", baud: int = 921600, prf_hz: float = 1000
 
     The power-on registers differ from the reset values in two ways, as a board's start-up
     would set them: ``gate_len`` is the scene's rendered gate (its samples), ``noise_log2``
-    is 7 (128-sample windows, as ``albcap demo`` uses) and ``fine_div`` the smallest divider
-    that keeps the fine time of a scan line below 2^24. The scene opens 200 ns before the
-    surface to leave room for those windows.
+    is ``SURVEY_NOISE_LOG2`` (as ``albcap demo`` uses) and ``fine_div`` the smallest divider
+    that keeps the fine time of a scan line below 2^24. The scene's gate opens early enough
+    for those windows (``survey_scene``).
     """
-    sc = dataclasses.replace(load_scene_arg(scene), pre_surface_s=200e-9)
+    sc = survey_scene(load_scene_arg(scene))
     src = SceneSource(sc, seed=seed, pool=pool)
     kw = {} if fifo_bytes is None else {"fifo_bytes": fifo_bytes}
     # the fine time must not saturate within a scan line: pick the divider that fits
     line_clocks = LINE_SYNC_SHOTS * round(1.0 / (prf_hz * src.dt_s))
     fine_div = min(65535, max(1, -(-line_clocks // (1 << FINE_BITS))))
-    regs = {"gate_len": src.n_samples, "noise_log2": 7, "fine_div": fine_div}
+    regs = {"gate_len": src.n_samples, "noise_log2": SURVEY_NOISE_LOG2, "fine_div": fine_div}
     dev = Device(src, baud=baud, prf_hz=prf_hz, registers=regs, **kw)
     # compile the chain's kernels now, not while the first frames are due
     reference_frames(src, dev.cfg, dev.bank, 0, 1, dev.prf_clocks)

@@ -22,6 +22,7 @@ import numpy as np
 from model.link import PacketType, encode_packet, packet_size
 
 from .capture import count_lost
+from .coeffs import survey_scene
 from .protocol import PacketParser
 
 __all__ = ["FAULTS", "bench_link", "fault_campaign", "inject"]
@@ -68,8 +69,7 @@ def _frame_pool(n: int, seed: int) -> list[bytes]:
     from model.registers import Config
     from sim.scene import preset
 
-    src = SceneSource(dataclasses.replace(preset("seed000"), pre_surface_s=200e-9), seed,
-                      pool=n)
+    src = SceneSource(survey_scene(preset("seed000")), seed, pool=n)
     cfg = Config(gate_len=64, frame_type=1, noise_log2=4, fine_div=16)
     return reference_frames(src, cfg, Bank(np.ones((1, 1), np.int16)), 0, n, 2_000_000)
 

@@ -9,7 +9,6 @@ made by ``firmware_host.coeffs`` from the scene's own pulse and its depth-depend
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 
@@ -38,19 +37,18 @@ def _parse_depths(text: str) -> list[float]:
 def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "linear",
               fixed: bool = False, bottom_rule: int = 2) -> list[dict]:
     """Run the sweep; one dict per depth with the statistics of the measured depths."""
-    from firmware_host.coeffs import scene_bank
+    from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
     from sim.scene import preset
     from sim.waveform import simulate
 
-    # A gate that opens 200 ns before the surface leaves room for 128-sample baseline and noise
-    # windows (noise_log2 = 7): short windows make a noisy threshold.
-    scene = dataclasses.replace(preset(preset_name), pre_surface_s=200e-9)
+    scene = survey_scene(preset(preset_name))
     if shots < 1:
         raise ValueError(f"--shots must be >= 1, not {shots!r}")
     x_range = (-800, 24700) if mode == "linear" else (0, 765)
     sb = scene_bank(scene, n_templates=1 if fixed else 8, n_taps=64, x_range=x_range)
     cfg = Config(stitch_mode=1 if mode == "linear" else 0, out_shift=sb.out_shift,
-                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, noise_log2=7, min_thr=sb.min_thr,
+                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, noise_log2=SURVEY_NOISE_LOG2,
+                 min_thr=sb.min_thr,
                  bottom_rule=bottom_rule)
     # compile (or load) the filter-and-detector loop now, so that us/frame times the chain
     run_chain(np.zeros((1, 3, 64), np.uint8), sb.bank, cfg.replace(gate_len=64))

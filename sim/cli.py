@@ -144,11 +144,16 @@ def _cmd_dr0(args) -> int:
     ax2.plot(depths, det["three_channel"], "s-", label="three channels, linear stitch")
     ax2.set(xlabel="depth [m]", ylabel="bottom detection rate", title="Seed 000 Fig. 3b")
     ax2.legend()
-    fig.tight_layout()
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=100)
-    print(f"chart -> {args.out}")
+    _save_chart(fig, args.out)
     return 0
+
+
+def _save_chart(fig, out) -> None:
+    """Lay out, write (making the folder) and report a chart."""
+    fig.tight_layout()
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    print(f"chart -> {out}")
 
 
 def _cmd_montecarlo(args) -> int:
@@ -186,10 +191,7 @@ def _cmd_montecarlo(args) -> int:
         ax2.plot(mc.depths_m, mc.peak_offset_s * 1e9, "s", label="peak offset")
         ax2.set(xlabel="depth [m]", ylabel="[ns]", title="Width vs depth (seed 001 Fig. 6)")
         ax2.legend()
-        fig.tight_layout()
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(args.out, dpi=100)
-        print(f"chart -> {args.out}")
+        _save_chart(fig, args.out)
     return 0
 
 
