@@ -1,7 +1,7 @@
 """``albcap demo``: a simulated depth sweep through the bit-exact chain.
 
-For each true depth: the simulator renders the gated echoes (``sim.waveform.simulate``), the
-three-channel capture quantizes them (``model.capture``), the gate adds headers from the trigger
+For each true depth: the simulator renders the gated echoes and the three-channel capture
+quantizes them (``sim.shots.make_shots``), the gate adds headers from the trigger
 times (``model.gate.gate_events``), the chain stitches, filters and detects (``model.chain``), and
 the depth stage turns the surface and bottom records into metres (``model.depth``). The bank is
 made by ``firmware_host.coeffs`` from the scene's own pulse and its depth-dependent stretching.
@@ -14,7 +14,6 @@ import time
 
 import numpy as np
 
-from .capture import capture
 from .chain import run_chain
 from .depth import depth_from_peaks
 from .gate import gate_events
@@ -39,7 +38,7 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
     """Run the sweep; one dict per depth with the statistics of the measured depths."""
     from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
     from sim.scene import preset
-    from sim.waveform import simulate
+    from sim.shots import make_shots
 
     scene = survey_scene(preset(preset_name))
     if shots < 1:
@@ -54,11 +53,11 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
     run_chain(np.zeros((1, 3, 64), np.uint8), sb.bank, cfg.replace(gate_len=64))
     rows = []
     for i, d in enumerate(depths):
-        res = simulate(scene, shots, seed + 1000 * i, depth_m=np.full(shots, float(d)))
-        adc = capture(res.volts, seed=seed + 1000 * i + 1, **scene.capture_params())
+        batch = make_shots(scene, float(d), shots, seed + 1000 * i)
+        adc, dt_s = batch.adc, batch.setup.dt_s
         cfg_i = cfg.replace(gate_len=adc.shape[-1])
         # one trigger per shot at 10 kHz, a scan line every 100 shots
-        prf_clocks = round(1e-4 / res.dt_s)
+        prf_clocks = round(1e-4 / dt_s)
         _, header = gate_events(np.arange(shots) * prf_clocks,
                                 np.arange(0, shots, 100) * prf_clocks, cfg_i)
         t0 = time.perf_counter()
@@ -68,8 +67,8 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
         dep = depth_from_peaks(p.surface.found, p.surface.position_q8, p.surface.template,
                                p.bottom.found, p.bottom.position_q8, p.bottom.template,
                                ref_offsets=sb.bank.ref_offsets, n_taps=sb.bank.L,
-                               dt_s=res.dt_s, incidence_deg=res.incidence_deg,
-                               n_water=res.n_water)
+                               dt_s=dt_s, incidence_deg=batch.setup.incidence_deg,
+                               n_water=batch.setup.n_water)
         err = dep.depth_m[dep.valid] - d
         rows.append({
             "depth_m": d,

@@ -52,8 +52,8 @@ _U32 = 0xFFFFFFFF
 class SceneSource:
     """ADC codes per shot from a simulated scene: a pool of shots, repeated.
 
-    Shot ``i`` is ``adc[i % pool]``: the pool is simulated once (``sim.waveform.simulate`` and
-    ``model.capture.capture``, seeded), so the source is fast enough to outrun any link.
+    Shot ``i`` is ``adc[i % pool]``: the pool is simulated once (``sim.shots.make_shots``,
+    seeded), so the source is fast enough to outrun any link.
 
     Parameters
     ----------
@@ -65,13 +65,11 @@ class SceneSource:
     """
 
     def __init__(self, scene, seed: int = 1, pool: int = 128):
-        from sim.waveform import simulate
+        from sim.shots import make_shots
 
-        from .capture import capture
-
-        res = simulate(scene, pool, seed)
-        self.adc = capture(res.volts, seed=seed + 1, **scene.capture_params())
-        self.dt_s = res.dt_s
+        shots = make_shots(scene, scene.depth_m, pool, seed)
+        self.adc = shots.adc
+        self.dt_s = shots.setup.dt_s
         self.scene = scene
 
     @property
