@@ -331,22 +331,37 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         from sim.montecarlo import bottom_returns
         from sim.stretching import mc_params
 
-        mc = bottom_returns(depths[1:], mc_packets, mc_seed, **mc_params(scene))
-        step = mc.time_s[1] - mc.time_s[0]
-        for k in range(1, n_templates):
-            wave = gaussian_filter1d(mc.waveforms[k - 1], sigma_e / step, mode="constant")
-            # Put the return's centroid where template 0 has its own (the window's middle):
-            # with equal sums of taps, all templates then delay a slowly varying input (the
-            # water column) alike, and a template switch leaves the filter output continuous.
-            # The unscattered echo time lands at ref[k]; the depth stage uses it.
-            if not np.sum(wave) > 0:
+        def returns(at_m):
+            mc = bottom_returns(at_m, mc_packets, mc_seed, **mc_params(scene))
+            step = mc.time_s[1] - mc.time_s[0]
+            waves = gaussian_filter1d(mc.waveforms, sigma_e / step, axis=-1, mode="constant")
+            sums = waves.sum(axis=-1)
+            if not np.all(sums > 0):
                 raise ValueError(f"the Monte Carlo run returned no bottom photons at "
-                                 f"{depths[k]:.1f} m; raise mc_packets (given {mc_packets})")
-            centroid_s = float(np.sum(mc.time_s * wave) / np.sum(wave))
-            ref[k] = float(np.clip(c0 - centroid_s / dt, 0.0, n_taps - 1))
-            templates[k] = np.interp((j - ref[k]) * dt, mc.time_s, wave, left=0.0, right=0.0)
+                                 f"{at_m[~(sums > 0)][0]:.1f} m; raise mc_packets "
+                                 f"(given {mc_packets})")
+            return mc.time_s, step, waves, (waves @ mc.time_s) / sums
+
+        # The template in use is chosen by the filter output's position, where a return shows
+        # its centroid, not its hit time: a bin's template is the return whose centroid falls
+        # in the middle of the bin, i.e. made for a depth shallower by the centroid's delay.
+        centre = depths[1:].copy()
+        time_s, step, waves, centroid = returns(centre)
+        for _ in range(2):
+            depths[1:] = np.maximum(centre - centroid / dt * m_per_sample, 0.5)
+            time_s, step, waves, centroid = returns(depths[1:])
+        for k in range(1, n_templates):
+            # Seed 001: the templates are the Monte Carlo bottom returns themselves, seen through
+            # the receiver's electrical response as the digitizer sees them. The return's
+            # centroid goes where template 0 has its own (the window's middle): with equal sums
+            # of taps all templates then delay a slowly varying input (the water column) alike,
+            # and a template switch leaves the filter output continuous. The hit time lands at
+            # ref[k] (below 0 when the centroid lies more than L/2 samples after the hit).
+            ref[k] = c0 - centroid[k - 1] / dt
+            templates[k] = np.interp((j - ref[k]) * dt, time_s, waves[k - 1], left=0.0,
+                                     right=0.0)
             # share of the return's area the window holds (the rest is the tail cut off)
-            coverage[k] = min(1.0, templates[k].sum() * dt / (wave.sum() * step))
+            coverage[k] = min(1.0, templates[k].sum() * dt / (waves[k - 1].sum() * step))
     bank = bank_from_templates(templates, ref, bank_id)
     shift = out_shift_for(bank, *x_range)
     sigma_y = adc_noise_lsb * float(np.linalg.norm(bank.coefs[0].astype(np.float64))) / 2**shift

@@ -39,18 +39,29 @@ def _bank_registers(meta: dict, path) -> dict[str, int]:
 
 
 def _cmd_coeffs(args) -> int:
-    from .coeffs import save_bank_json, scene_bank, write_bank_hex
-    from .emulator import load_scene_arg
+    from model.registers import Config
 
+    from .coeffs import SURVEY_NOISE_LOG2, save_bank_json, scene_bank, write_bank_hex
+    from .emulator import load_scene_arg
+    from .walk import calibrate_walk
+
+    if args.walk_shots < 0:
+        raise ValueError(f"--walk-shots must be >= 0, not {args.walk_shots}")
     scene = load_scene_arg(args.preset)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sb = scene_bank(scene, n_templates=args.templates, n_taps=args.taps)
-    regs = {"out_shift": sb.out_shift, "bin_offset": sb.bin_offset, "bin_len": sb.bin_len,
-            "min_thr": sb.min_thr}
+    # The registers the bank was made and calibrated for; `albcap config --bank` applies them.
+    regs = {"stitch_mode": 1, "out_shift": sb.out_shift, "bin_offset": sb.bin_offset,
+            "bin_len": sb.bin_len, "min_thr": sb.min_thr, "noise_log2": SURVEY_NOISE_LOG2,
+            "bottom_rule": 2}
+    meta = {}
+    if args.walk_shots:
+        walk = calibrate_walk(scene, sb.bank, Config(**regs), shots=args.walk_shots)
+        meta["walk_samples"] = walk.tolist()
     save_bank_json(out / "bank.json", sb.bank, scene=args.preset, registers=regs,
                    bin_depths_m=sb.bin_depths_m.tolist(), snr_loss_db=sb.snr_loss_db.tolist(),
-                   coverage=sb.coverage.tolist())
+                   coverage=sb.coverage.tolist(), **meta)
     write_bank_hex(out / "bank.hex", sb.bank)
     print(f"bank K={sb.bank.K} L={sb.bank.L} for {args.preset}: {out / 'bank.json'}, "
           f"{out / 'bank.hex'}")
@@ -137,7 +148,13 @@ def _cmd_depth(args) -> int:
     from .coeffs import load_bank_json
     from .emulator import load_scene_arg
 
-    bank, _ = load_bank_json(args.bank)
+    bank, meta = load_bank_json(args.bank)
+    walk = meta.get("walk_samples")
+    if walk is not None:
+        walk = np.asarray(walk, dtype=np.float64)
+        if walk.ndim != 3 or walk.shape[0] != bank.K:
+            raise ValueError(f"{args.bank}: meta.walk_samples must be a K x 2 x M table for "
+                             f"K={bank.K}, not shape {walk.shape}")
     frames, _attrs = read_capture(args.file)
     scene = load_scene_arg(args.scene)
     pk = peak_table(frames)
@@ -148,7 +165,7 @@ def _cmd_depth(args) -> int:
     dep = depth_from_peaks(pk["found"][:, 0], pk["position_q8"][:, 0], pk["template"][:, 0],
                            pk["found"][:, 1], pk["position_q8"][:, 1], pk["template"][:, 1],
                            ref_offsets=bank.ref_offsets, n_taps=bank.L, dt_s=scene.dt_s,
-                           incidence_deg=scene.incidence_deg, n_water=scene.n_water)
+                           incidence_deg=scene.incidence_deg, n_water=scene.n_water, walk=walk)
     d = dep.depth_m[dep.valid]
     if args.csv:
         np.savetxt(args.csv, np.column_stack([np.arange(len(frames)), dep.valid, dep.depth_m]),
@@ -182,6 +199,8 @@ def register(sub) -> None:
     p.add_argument("--templates", type=int, default=8, help="K, templates")
     p.add_argument("--taps", type=int, default=64, help="L, taps per template")
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--walk-shots", type=int, default=2,
+                   help="calibration shots per 0.1 m for the range-walk table (0: none)")
     p.set_defaults(func=_cmd_coeffs)
 
     p = sub.add_parser("load", help="load a bank file into the device (verified, atomic)")

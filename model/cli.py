@@ -80,6 +80,8 @@ def register(sub) -> None:
                    help="fixed matched filter (template 0 only) instead of the adaptive bank")
     p.add_argument("--bottom-rule", type=int, choices=(0, 1, 2), default=2,
                    help="0 latest peak (seed 000), 1 largest, 2 largest rise (default)")
+    p.add_argument("--no-walk", action="store_true",
+                   help="raw depths, without the bank's range-walk correction")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("vectors", help="write golden input/output vectors of a stage")

@@ -34,9 +34,14 @@ def _parse_depths(text: str) -> list[float]:
 
 
 def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "linear",
-              fixed: bool = False, bottom_rule: int = 2) -> list[dict]:
-    """Run the sweep; one dict per depth with the statistics of the measured depths."""
+              fixed: bool = False, bottom_rule: int = 2, walk: bool = True) -> list[dict]:
+    """Run the sweep; one dict per depth with the statistics of the measured depths.
+
+    ``walk``: correct the depths with the bank's range-walk table
+    (``firmware_host.walk.calibrate_walk``, calibrated on shots seeded apart from the sweep).
+    """
     from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
+    from firmware_host.walk import calibrate_walk
     from sim.scene import preset
     from sim.shots import make_shots
 
@@ -51,6 +56,7 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
                  bottom_rule=bottom_rule)
     # compile (or load) the filter-and-detector loop now, so that us/frame times the chain
     run_chain(np.zeros((1, 3, 64), np.uint8), sb.bank, cfg.replace(gate_len=64))
+    table = calibrate_walk(scene, sb.bank, cfg) if walk else None
     rows = []
     for i, d in enumerate(depths):
         batch = make_shots(scene, float(d), shots, seed + 1000 * i)
@@ -68,7 +74,7 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
                                p.bottom.found, p.bottom.position_q8, p.bottom.template,
                                ref_offsets=sb.bank.ref_offsets, n_taps=sb.bank.L,
                                dt_s=dt_s, incidence_deg=batch.setup.incidence_deg,
-                               n_water=batch.setup.n_water)
+                               n_water=batch.setup.n_water, walk=table)
         err = dep.depth_m[dep.valid] - d
         rows.append({
             "depth_m": d,
@@ -89,11 +95,12 @@ def run_demo(args) -> int:
     kind = "fixed" if args.fixed else "depth-adaptive"
     rule = ("latest", "largest", "largest rise")[args.bottom_rule]
     print(f"albcap demo: preset {args.preset}, {args.shots} shots per depth, stitch {args.mode}, "
-          f"{kind} matched filter, bottom rule {rule} (bit-exact model)")
+          f"{kind} matched filter, bottom rule {rule} (bit-exact model), "
+          f"{'no range-walk correction' if args.no_walk else 'range-walk corrected on the host'}")
     print(f"{'true m':>8} {'measured m':>11} {'bias cm':>8} {'std cm':>7} {'detected':>9} "
           f"{'us/frame':>9}")
     for r in demo_rows(args.preset, depths, args.shots, args.seed, args.mode, args.fixed,
-                       args.bottom_rule):
+                       args.bottom_rule, walk=not args.no_walk):
         if r["detected"]:
             print(f"{r['depth_m']:8.2f} {r['mean_m']:11.3f} {100 * r['bias_m']:8.1f} "
                   f"{100 * r['std_m']:7.1f} {r['detected'] / r['shots']:9.1%} "

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["C0_M_PER_S", "N_WATER", "DepthResult", "depth_from_peaks", "event_time_s",
-           "refracted_angle_rad"]
+           "refracted_angle_rad", "walk_correction"]
 
 C0_M_PER_S = 299_792_458.0
 #: Refractive index of sea water at 532 nm used by default; c0 / 1.33 = 225 407 km/s, against
@@ -82,9 +82,44 @@ def event_time_s(position_q8, template, ref_offsets, n_taps: int, dt_s: float):
     return (np.asarray(position_q8, dtype=np.float64) / 256.0 - delay) * dt_s
 
 
+def walk_correction(separation, template, walk) -> np.ndarray:
+    """Range-walk correction of surface-to-bottom separations, samples.
+
+    Parameters
+    ----------
+    separation : float array, shape (B,)
+        Raw ``(t_b - t_s) / T_s`` from the records, samples.
+    template : int array, shape (B,)
+        Template of each bottom record.
+    walk : float array, shape (K, 2, M)
+        Per template ``k``, ``walk[k, 0]`` increasing raw separations (samples) and
+        ``walk[k, 1]`` the corrections there (samples), interpolated linearly and held at the
+        end values outside (``firmware_host.walk.calibrate_walk``).
+
+    Returns
+    -------
+    float64 ndarray, shape (B,)
+        Samples to add to ``separation``.
+    """
+    w = np.asarray(walk, dtype=np.float64)
+    if w.ndim != 3 or w.shape[1] != 2 or w.shape[2] < 2 or not np.isfinite(w).all():
+        raise ValueError(f"walk must be a finite (K, 2, M >= 2) array, not shape {w.shape}")
+    if np.any(np.diff(w[:, 0], axis=-1) < 0):
+        raise ValueError("walk separations must increase along each template's table")
+    k = np.asarray(template, dtype=np.int64)
+    if k.size and (k.min() < 0 or k.max() >= w.shape[0]):
+        raise ValueError(f"template index must be in 0..{w.shape[0] - 1}, not {k.max()}")
+    x = np.asarray(separation, dtype=np.float64)
+    out = np.zeros(x.shape)
+    for t in np.unique(k):
+        sel = k == t
+        out[sel] = np.interp(x[sel], w[t, 0], w[t, 1])
+    return out
+
+
 def depth_from_peaks(surface_found, surface_q8, surface_template, bottom_found, bottom_q8,
                      bottom_template, *, ref_offsets, n_taps: int, dt_s: float,
-                     incidence_deg=0.0, n_water: float = N_WATER) -> DepthResult:
+                     incidence_deg=0.0, n_water: float = N_WATER, walk=None) -> DepthResult:
     """Depths from the peak detector's surface and bottom records.
 
     Parameters
@@ -103,11 +138,16 @@ def depth_from_peaks(surface_found, surface_q8, surface_template, bottom_found, 
         Beam angle from nadir in air, degrees (seed 000 uses 10).
     n_water : float
         Refractive index of water.
+    walk : float array, shape (K, 2, M), optional
+        Range-walk correction per bottom template (:func:`walk_correction`); ``None``: none.
     """
     if not (dt_s > 0 and math.isfinite(dt_s)):
         raise ValueError(f"dt_s must be a positive number of seconds, not {dt_s!r}")
     t_s = event_time_s(surface_q8, surface_template, ref_offsets, n_taps, dt_s)
     t_b = event_time_s(bottom_q8, bottom_template, ref_offsets, n_taps, dt_s)
+    if walk is not None:
+        sep = (t_b - t_s) / dt_s
+        t_b = t_b + walk_correction(sep, bottom_template, walk) * dt_s
     valid = np.asarray(surface_found, bool) & np.asarray(bottom_found, bool) & (t_b > t_s)
     slant = np.where(valid, (C0_M_PER_S / n_water) * (t_b - t_s) / 2.0, 0.0)
     depth = slant * np.cos(refracted_angle_rad(incidence_deg, n_water))

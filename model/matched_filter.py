@@ -31,6 +31,7 @@ __all__ = [
     "K_MAX",
     "L_MAX",
     "OUT_WIDTH",
+    "REF_SPAN",
     "Bank",
     "check_config",
     "matched_filter",
@@ -58,6 +59,10 @@ def check_config(cfg) -> Config:
     return cfg
 
 
+#: Largest ``|c_k|``, samples: the longest gate; an event farther from its template is not one.
+REF_SPAN = 4096
+
+
 @dataclass(frozen=True)
 class Bank:
     """A coefficient bank: ``K`` templates of ``L`` signed 16-bit taps, in time order.
@@ -67,8 +72,10 @@ class Bank:
     coefs : ndarray of int16, shape (K, L)
         ``h[k][j]``; ``1 <= K <= K_MAX``, ``1 <= L <= L_MAX``. Stored as a read-only copy.
     ref_offsets : array_like of float, shape (K,), optional
-        ``c_k`` in samples, in ``0 .. L-1``: the index within template ``k`` that corresponds to
-        the true event time (spec section 6). Default: the argmax of each template.
+        ``c_k`` in samples, finite, within ``+-REF_SPAN``: the (fractional) index within template
+        ``k`` that corresponds to the true event time (spec section 6). It may lie outside
+        ``0 .. L-1``: a deep, stretched return whose centroid sits mid-window starts before the
+        window. Default: the argmax of each template.
     bank_id : int
         Commit count of the bank, ``0..255`` (frame header field ``bank_id``).
     """
@@ -92,10 +99,10 @@ class Bank:
             if ref.shape != (coefs.shape[0],):
                 raise ValueError(
                     f"ref_offsets must have shape ({coefs.shape[0]},), not {ref.shape}")
-            bad = ~np.isfinite(ref) | (ref < 0) | (ref > coefs.shape[1] - 1)
+            bad = ~np.isfinite(ref) | (np.abs(ref) > REF_SPAN)
             if bad.any():
                 raise ValueError(
-                    f"ref_offsets must be in 0..{coefs.shape[1] - 1} samples, "
+                    f"ref_offsets must be finite and within -{REF_SPAN}..{REF_SPAN} samples, "
                     f"not {float(ref[bad][0])!r}"
                 )
         ref.flags.writeable = False

@@ -98,8 +98,8 @@ class TestBank:
          "bank_id must be in 0..255, not 256"),
         ({"coefs": np.ones((2, 3), np.int16), "ref_offsets": [1.0]},
          "ref_offsets must have shape (2,), not (1,)"),
-        ({"coefs": np.ones((2, 3), np.int16), "ref_offsets": [1.0, 2.5]},
-         "ref_offsets must be in 0..2 samples, not 2.5"),
+        ({"coefs": np.ones((2, 3), np.int16), "ref_offsets": [1.0, 5000.0]},
+         "ref_offsets must be finite and within -4096..4096 samples, not 5000.0"),
     ])
     def test_bad_input_names_parameter_and_value(self, kwargs, message):
         with pytest.raises(ValueError, match=re.escape(message)):
