@@ -32,6 +32,7 @@ __all__ = [
     "bank_from_templates",
     "gaussian_pulse",
     "load_bank_json",
+    "noise_floor_lsb",
     "out_shift_for",
     "quantization_snr_loss_db",
     "read_bank_hex",
@@ -58,6 +59,13 @@ def survey_scene(scene):
 #: ``format`` field of a bank JSON file.
 BANK_FORMAT = "albcap-bank-1"
 _C_LO, _C_HI = int_range(COEF_WIDTH, signed=True)
+
+
+def noise_floor_lsb(scene) -> float:
+    """Noise always present on the high-gain channel, LSB rms (ADC, TIA, quantization)."""
+    lsb_v = scene.full_scale_v / 256 / scene.gains[2]
+    return math.sqrt(scene.channel_noise_lsb[2] ** 2 + (scene.electronics_noise_v / lsb_v) ** 2
+                     + 1 / 12)
 
 
 def gaussian_pulse(fwhm_samples: float, n_taps: int, centre: float | None = None) -> np.ndarray:
@@ -274,7 +282,7 @@ class SceneBank:
 def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
                x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
                mc_packets: int = 20000, mc_seed: int = 4242,
-               adc_noise_lsb: float = 0.5) -> SceneBank:
+               adc_noise_lsb: float | None = None) -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
@@ -298,9 +306,10 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         Range of the stitched input, for the output shift (default: the linear rule's).
     mc_packets, mc_seed : int
         Photon packets per leg and seed of the Monte Carlo run.
-    adc_noise_lsb : float
-        Noise of the stitched input that is always there (ADC noise and quantization), LSB rms,
-        for ``min_thr``.
+    adc_noise_lsb : float, optional
+        Noise of the stitched input that is always there, LSB rms, for ``min_thr``. Default:
+        the scene's own floor in the high-gain channel, its ADC noise, its TIA noise and the
+        quantization (1/12 LSB^2) added in power; about 0.56 LSB for ``seed000``.
     """
     from sim.optics import refracted_angle
 
@@ -364,6 +373,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
             coverage[k] = min(1.0, templates[k].sum() * dt / (waves[k - 1].sum() * step))
     bank = bank_from_templates(templates, ref, bank_id)
     shift = out_shift_for(bank, *x_range)
+    if adc_noise_lsb is None:
+        adc_noise_lsb = noise_floor_lsb(scene)
     sigma_y = adc_noise_lsb * float(np.linalg.norm(bank.coefs[0].astype(np.float64))) / 2**shift
     return SceneBank(
         bank=bank,

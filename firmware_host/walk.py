@@ -32,7 +32,8 @@ WALK_NODES = 12
 
 def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
                    last_m: float | None = None, step_m: float = 0.1, shots: int = 2,
-                   nodes: int = WALK_NODES, seed: int = CALIBRATION_SEED) -> np.ndarray:
+                   nodes: int = WALK_NODES, seed: int = CALIBRATION_SEED,
+                   fidelity: str = "auto") -> np.ndarray:
     """Per-template range-walk tables for ``bank`` on ``scene``.
 
     Parameters
@@ -49,6 +50,9 @@ def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
     nodes : int
         Table nodes per template (>= 2).
     seed : int
+    fidelity : str
+        Simulator fidelity of the calibration shots (``sim.waveform.simulate``): the same as
+        the survey the table is for.
 
     Returns
     -------
@@ -73,7 +77,7 @@ def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
     # table instead of averaging out.
     n = shots * (round((last_m - first_m) / step_m) + 1)
     truth = np.random.default_rng(seed).uniform(first_m, last_m, n)
-    batch = make_shots(scene, truth, truth.size, seed)
+    batch = make_shots(scene, truth, truth.size, seed, fidelity=fidelity)
     dt = batch.setup.dt_s
     out = run_chain(batch.adc, bank, cfg.replace(gate_len=batch.adc.shape[-1]))
     s, b = out.peaks.surface, out.peaks.bottom
