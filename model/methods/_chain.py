@@ -1,0 +1,111 @@
+"""The bit-exact on-chip chain (stitch, matched filter, peak detector) as a method.
+
+Shared by ``fixed_mf`` (one template, the received pulse) and ``adaptive_mf`` (seed 001's
+depth-adaptive bank). The recipe is ``model.demo.demo_rows``: a bank from
+``firmware_host.coeffs.scene_bank`` with 64 taps, the ``linear`` stitch, the survey's noise
+windows (``SURVEY_NOISE_LOG2``), threshold floor from the bank, bottom rule 2 (largest rise),
+then ``model.depth.depth_from_peaks`` with the bank's reference offsets and its range-walk
+table (``firmware_host.walk.calibrate_walk``: shots at random depths of the survey's scene,
+seeded apart from every evaluation, through the same chain; what ``albcap coeffs`` stores in a
+bank file and ``albcap depth`` applies).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from model.chain import run_chain
+from model.depth import depth_from_peaks, event_time_s, walk_correction
+from model.registers import Config
+
+from ._common import check_adc_shots, not_detected, stitch_cfg
+from .base import Estimate, Method, Setup, Shots
+
+__all__ = ["ChainMethod"]
+
+#: Stitched input range of the ``linear`` rule (high-gain LSB), for the filter's output shift.
+X_RANGE = (-800, 24700)
+N_TAPS = 64
+
+
+class ChainMethod(Method):
+    """Base of the two on-chip methods; subclasses set ``n_templates``.
+
+    Parameters
+    ----------
+    stitch : {"linear", "paper"}
+        The stitch register's rule (``model.stitch``); ``paper`` (seed 000 eq. 1) uses the
+        filter's output shift for its 0..765 range, as ``model.demo.demo_rows`` does.
+    walk : bool
+        Correct the depths with the bank's range-walk table (default), as ``albcap depth``
+        does with a bank file from ``albcap coeffs``; False gives the raw depths.
+    """
+
+    bit_exact = True
+    n_templates = 1
+
+    def __init__(self, stitch: str = "linear", walk: bool = True):
+        if stitch not in ("linear", "paper"):
+            raise ValueError(f"stitch must be 'linear' or 'paper', not {stitch!r}")
+        self.stitch = stitch
+        self.walk = walk
+        self._sb = None
+        self._cfg = None
+        self._walk = None
+
+    def prepare(self, setup: Setup) -> None:
+        """Build the bank and the registers for the setup's scene (and compile the kernel)."""
+        from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank
+        from firmware_host.walk import calibrate_walk
+
+        linear = self.stitch == "linear"
+        sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=N_TAPS,
+                        x_range=X_RANGE if linear else (0, 765))
+        base = _stitch_registers(setup)
+        self._cfg = Config(stitch_mode=1 if linear else 0, out_shift=sb.out_shift,
+                           bin_offset=sb.bin_offset, bin_len=sb.bin_len,
+                           noise_log2=SURVEY_NOISE_LOG2, min_thr=sb.min_thr, bottom_rule=2,
+                           **base)
+        self._sb = sb
+        # compile (or load) the filter-and-detector loop here, so estimate() times the chain only
+        run_chain(np.zeros((1, 3, N_TAPS), np.uint8), sb.bank, self._cfg.replace(gate_len=N_TAPS))
+        self._walk = calibrate_walk(setup.scene, sb.bank, self._cfg) if self.walk else None
+
+    def estimate(self, shots: Shots) -> Estimate:
+        """Depths by the bit-exact chain; a frame shorter than the detector's windows (baseline,
+        noise and the filter's warm-up) cannot be read and is flagged."""
+        adc = check_adc_shots(shots)
+        if self._sb is None:  # not prepared: prepare now (untimed work done once)
+            self.prepare(shots.setup)
+        n, N = adc.shape[0], adc.shape[-1]
+        if n == 0:
+            return not_detected(0)
+        cfg = self._cfg
+        # the detector needs the filter's warm-up (L - 1) plus two noise windows before any peak
+        need = self._sb.bank.L - 1 + 2 * (1 << cfg.noise_log2) + 2
+        if N < need or N > 4096:
+            return not_detected(n)
+        out = run_chain(adc, self._sb.bank, cfg.replace(gate_len=N))
+        p = out.peaks
+        st = shots.setup
+        dep = depth_from_peaks(p.surface.found, p.surface.position_q8, p.surface.template,
+                               p.bottom.found, p.bottom.position_q8, p.bottom.template,
+                               ref_offsets=self._sb.bank.ref_offsets, n_taps=self._sb.bank.L,
+                               dt_s=st.dt_s, incidence_deg=st.incidence_deg, n_water=st.n_water,
+                               walk=self._walk)
+        ok = dep.valid & np.isfinite(dep.depth_m) & (dep.depth_m > 0)
+        ts = event_time_s(p.surface.position_q8, p.surface.template, self._sb.bank.ref_offsets,
+                          self._sb.bank.L, st.dt_s)
+        tb = event_time_s(p.bottom.position_q8, p.bottom.template, self._sb.bank.ref_offsets,
+                          self._sb.bank.L, st.dt_s)
+        if self._walk is not None:
+            tb = tb + walk_correction((tb - ts) / st.dt_s, p.bottom.template, self._walk) * st.dt_s
+        return Estimate(depth_m=np.where(ok, dep.depth_m, 0.0), detected=ok,
+                        surface_s=np.where(ok, ts, 0.0), bottom_s=np.where(ok, tb, 0.0))
+
+
+def _stitch_registers(setup: Setup) -> dict:
+    """The ``linear`` stitch registers of the setup's front end (baselines, gain ratios)."""
+    c = stitch_cfg(setup)
+    return {k: getattr(c, k) for k in ("baseline_l", "baseline_m", "baseline_h", "ratio_m_q8",
+                                       "ratio_l_q8")}

@@ -1,0 +1,174 @@
+"""Float peak detection on the smoothed stitched waveform (seed 000 section 1.3)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from ._common import (
+    MIN_SEP_S,
+    NOISE_FLOOR_LSB,
+    FloatWave,
+    build_table,
+    column_decay,
+    finish,
+    float_wave,
+    ideal_wave,
+    not_detected,
+)
+from ._peaks import estimate_depths
+from .base import Estimate, Method, Setup, Shots
+
+__all__ = ["PeaksFloat", "pulse_sigma_s"]
+
+
+def pulse_sigma_s(scene) -> float:
+    """Standard deviation of the received pulse, s: the emitted Gaussian (FWHM) through the
+    receiver's Gaussian electrical response (as ``firmware_host.coeffs.scene_bank``)."""
+    sigma_e = math.sqrt(math.log(2)) / (2 * math.pi * scene.electrical_bandwidth_hz)
+    return math.hypot(scene.pulse_fwhm_s / math.sqrt(8 * math.log(2)), sigma_e)
+
+
+class PeaksFloat(Method):
+    """Seed 000's peak detection in floating point, on the smoothed ``linear``-stitched wave.
+
+    Steps (batch-vectorized): the ``linear`` stitch (``model.stitch``) as float, high-gain LSB,
+    lead-in median removed (``_common.float_wave``); a Gaussian smoothing (seed 000 smooths
+    before detecting) of ``smooth_factor = 2`` times the received pulse's standard deviation:
+    it matches a bottom return that scattering has widened, and on seed 000 water it halves the
+    depth spread at 20-22 m against a smoothing of one pulse width; where it finds no bottom
+    (shallow water, below about 2 m, where it merges the two returns) the shot is tried again
+    at one pulse sigma, then at 0.4 (down to about 1 m). Peaks: local maxima (largest within
+    one smoothing width) above ``k_noise = 8`` times the lead-in noise (seed 000 section 1.3)
+    which also stand 8 noise deviations above the lowest point of the 4 smoothing widths
+    before them and of everything after them (``_peaks.estimate_depths`` with
+    ``prominence_window``: this rejects noise ripples riding on the water-column return);
+    surface = the largest peak, bottom = the latest peak at least 6 ns after it (seed 000's
+    rule); sub-sample times by a parabola through three samples; depth by ``model.depth``
+    (Snell's law, ``c0 / n``). Then the per-survey depth table (``_common.DepthTable``, seed
+    001's per-depth peak-offset correction) takes out the lag of the stretched bottom peak
+    behind the bottom-hit time.
+
+    Water check: the table holds for the survey's water only, so a shot whose water-column
+    return decays at a rate more than ``column_tol = 25 %`` from the survey's (measured at
+    :meth:`prepare` on the noise-free waveform; ``_common.column_decay``) is flagged: water
+    more turbid than the survey's stretches the bottom more than the table corrects (at 10 m,
+    3 mg/L of sediment against the survey's 1 would leave the depth 0.56 m long).
+
+    Units: ADC codes in; seconds from the first gate sample and metres out. Float, not
+    bit-exact. Assumptions: the first 40 ns of the gate hold no echo; the scene given to
+    :meth:`prepare` has the survey's water and instrument (the table is made from it).
+
+    Failure modes: deep, weak bottoms (seed 000 water: the spread grows from 1 cm at 17 m to
+    3-6 cm at 20-22 m, and bottoms beyond about 23 m stay under the 8-sigma threshold and are
+    flagged); merged echoes in very shallow water (under about 1 m). Flags: no peak; bottom not
+    6 ns after the surface; times outside the gate; depth outside the table's range; the water
+    check. The methods built on this one (``threshold``, ``gpg_lm``, ``weibull_eemd``,
+    ``richardson_lucy``) inherit the detection, the table and the checks.
+    """
+
+    name = "peaks_float"
+    label = "float peak detection"
+    error_bound_m = 0.5
+    k_noise = 8.0
+    smooth_factor = 2.0
+    #: largest relative difference of the water column's decay rate from the survey's
+    column_tol = 0.25
+
+    def __init__(self):
+        self._table = None
+        self._sigma = None  # smoothing, samples
+        self._pulse = None  # received pulse's standard deviation, samples
+        self._last = None  # the last detection (smoothed waveform, picks, dt)
+        self._rate0 = None  # the survey water's column decay rate, 1/sample
+
+    def prepare(self, setup: Setup) -> None:
+        """The smoothing width and the per-survey depth table for the setup's scene."""
+        self._pulse = pulse_sigma_s(setup.scene) / setup.dt_s
+        self._sigma = self.smooth_factor * self._pulse
+        self._table = build_table(self, setup)
+        self._rate0 = None
+        if self._table is not None:
+            fw, _ = ideal_wave(setup, [math.nan])
+            _, r, _ = self._detect(fw)
+            rate = self._column_rate(fw, r["surface_s"], np.full(1, np.inf))[0]
+            self._rate0 = float(rate) if np.isfinite(rate) and rate > 0 else None
+
+    def _column_rate(self, fw: FloatWave, surface_s, bottom_s) -> np.ndarray:
+        """The water column's decay rate under the surface, 1/sample (``column_decay``) on the
+        waveform smoothed by one pulse sigma, clear of the surface by 4 received FWHM and of
+        the bottom by 2 (and 3 sigmas of smoothing), where the returns' flanks would bend it."""
+        fwhm = math.sqrt(8 * math.log(2)) * self._pulse
+        y = gaussian_filter1d(fw.y, self._pulse, axis=1, mode="nearest")
+        return column_decay(y, surface_s / fw.dt_s, bottom_s / fw.dt_s,
+                            round(4 * fwhm + 3 * self._pulse), round(2 * fwhm + 3 * self._pulse))
+
+    def _pick(self, y: np.ndarray, fw: FloatWave, sigma: float) -> dict:
+        """Seed 000's rule on ``y`` (smoothed by ``sigma`` samples): ``estimate_depths`` with the
+        largest peak as surface and the latest as bottom; a peak is the largest sample within
+        ``sigma`` and must stand out over the ``4 sigma`` before it and everything after it."""
+        # smoothing lowers the noise: the floor scales with it so a flat lead-in stays flat
+        floor = NOISE_FLOOR_LSB / math.sqrt(2 * math.sqrt(math.pi) * sigma)
+        # only the times are used: the depth is made (and checked) by ``_common.finish``
+        return estimate_depths(y, fw.dt_s, 1.33, 0.0, k_noise=self.k_noise,
+                               noise_samples=fw.n0, noise_floor=floor, min_sep_s=MIN_SEP_S,
+                               bottom_rule="last", surface_rule="largest",
+                               peak_halfwidth=max(1, round(sigma)),
+                               prominence_window=round(4 * sigma))
+
+    def _detect(self, fw: FloatWave):
+        """Picks at several smoothings, per shot the widest one that finds a bottom.
+
+        Returns ``(y, r, sigma)``: per row the waveform at the smoothing used, the picks
+        (``estimate_depths``'s dict) and that smoothing's standard deviation, samples. The
+        widest (``smooth_factor`` pulse sigmas) reaches deeper, weaker bottoms; the narrower
+        ones (one and 0.4 pulse sigma) still separate the two returns in shallow water, where
+        a wider one merges them (below about 2 m and 1.3 m).
+        """
+        raw = fw.y
+        n = raw.shape[0]
+        y = np.zeros_like(raw)
+        used = np.zeros(n)
+        r = None
+        for sigma in (self._sigma, self._pulse, 0.4 * self._pulse):
+            rows = ~(used > 0)
+            if not rows.any():
+                break
+            ys = gaussian_filter1d(raw[rows], sigma, axis=1, mode="nearest")
+            rs = self._pick(ys, fw, sigma)
+            if r is None:
+                r = {k: np.zeros(n, dtype=v.dtype) for k, v in rs.items()}
+            # rows not found at this scale keep trying; the last scale's answer stands
+            take = rs["detected"] | (sigma == 0.4 * self._pulse)
+            idx = np.flatnonzero(rows)[take]
+            for k in r:
+                r[k][idx] = rs[k][take]
+            y[idx] = ys[take]
+            used[idx] = sigma
+        self._last = (y, r, fw.dt_s)
+        return y, r, used
+
+    def _times(self, fw: FloatWave):
+        """Surface and bottom times, s, and whether both were found, before any correction."""
+        _, r, _ = self._detect(fw)
+        return r["surface_s"], r["bottom_s"], r["detected"]
+
+    def estimate(self, shots: Shots) -> Estimate:
+        """Depths of a batch of digitized shots (see the class docstring)."""
+        if self._sigma is None:
+            self.prepare(shots.setup)
+        fw = float_wave(shots)
+        if fw.y.shape[1] < 16:
+            return not_detected(len(shots))
+        ts, tb, ok = self._times(fw)
+        if self._rate0 is not None:
+            # the depth table holds for the survey's water only: where the water column decays
+            # at another rate (turbid water stretches the bottom return more), flag the shot
+            _, r, _ = self._last
+            ratio = self._column_rate(fw, r["surface_s"], r["bottom_s"]) / self._rate0
+            with np.errstate(invalid="ignore"):
+                ok = ok & ~(np.abs(ratio - 1.0) > self.column_tol)
+        return finish(shots.setup, ts, tb, ok, gate_s=fw.y.shape[1] * fw.dt_s,
+                      table=self._table)
