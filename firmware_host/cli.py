@@ -17,6 +17,7 @@ __all__ = ["main"]
 #: Modules contributing subcommands, in help order.
 COMMAND_MODULES = (
     "model.cli",
+    "model.accuracy_cli",
     "sim.cli",
     "hdl.cli",
     "firmware_host.commands",

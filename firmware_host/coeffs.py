@@ -345,10 +345,17 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
             step = mc.time_s[1] - mc.time_s[0]
             waves = gaussian_filter1d(mc.waveforms, sigma_e / step, axis=-1, mode="constant")
             sums = waves.sum(axis=-1)
-            if not np.all(sums > 0):
-                raise ValueError(f"the Monte Carlo run returned no bottom photons at "
-                                 f"{at_m[~(sums > 0)][0]:.1f} m; raise mc_packets "
-                                 f"(given {mc_packets})")
+            reached = sums > 0
+            if not reached[0]:
+                # Turbid water: not even the first bin's bottom comes back; those bins serve
+                # only noise, and the received pulse (template 0) is as good a template as any.
+                waves[0] = np.exp(-0.5 * (mc.time_s / sigma) ** 2)
+                sums[0], reached[0] = waves[0].sum(), True
+            # Bins past the water's reach (no packet came back from that deep) repeat the
+            # deepest return that did: a bottom there is not detected whatever the template,
+            # and a bank for the whole gate keeps the registers valid.
+            last = np.maximum.accumulate(np.where(reached, np.arange(len(sums)), 0))
+            waves, sums = waves[last], sums[last]
             return mc.time_s, step, waves, (waves @ mc.time_s) / sums
 
         # The template in use is chosen by the filter output's position, where a return shows

@@ -154,11 +154,27 @@ class TestSceneBank:
         assert np.all(np.diff(width[whole]) >= 0) and width[whole][-1] > width[0]
         assert made.coverage[-1] < made.coverage[1]  # the 34 m return outgrows 24 ns
 
-    def test_too_few_photon_packets_is_a_clear_error(self):
+    def test_bins_past_the_waters_reach_repeat_the_deepest_return(self):
+        import dataclasses
+
         from sim.scene import preset
 
-        with pytest.raises(ValueError, match="returned no bottom photons at .* raise mc_packets"):
-            coeffs.scene_bank(preset("seed000"), n_templates=4, mc_packets=50)
+        # 8 mg/L of sediment: no packet comes back from the deeper bins
+        turbid = dataclasses.replace(preset("seed000"), sediment_mg_l=8.0)
+        sb = coeffs.scene_bank(turbid, n_templates=8)
+        np.testing.assert_array_equal(sb.bank.coefs[-1], sb.bank.coefs[-2])
+        assert len({row.tobytes() for row in sb.bank.coefs}) > 2
+
+    def test_water_that_returns_nothing_gets_the_pulse_everywhere(self):
+        import dataclasses
+
+        from sim.scene import preset
+
+        mud = dataclasses.replace(preset("seed000"), sediment_mg_l=300.0)
+        sb = coeffs.scene_bank(mud, n_templates=4)
+        c = sb.bank.coefs.astype(np.int64)
+        # the same Gaussian, sampled on the Monte Carlo time grid and put back on the taps
+        assert np.abs(c[1:] - c[0]).max() <= 0.01 * c[0].max()
 
     def test_out_shift_cannot_saturate(self, made):
         assert made.out_shift == coeffs.out_shift_for(made.bank, -800, 24700)

@@ -1,0 +1,657 @@
+"""The accuracy study: every depth-extraction method on the same simulated shots, through Dask.
+
+A *sweep* is a list of points (a scene and a true depth) times a list of methods, ``n`` shots
+per point. Each point is cut into chunks of :data:`CHUNK` shots; one Dask task simulates one
+chunk once and runs every method that wants it, so all methods are scored on the same
+waveforms. A task's random seed is derived from (sweep, point, chunk) only
+(:func:`chunk_seed`), never from the order of execution, and results are gathered in task
+order: any scheduler (synchronous, threads, processes, a ``dask.distributed`` cluster) gives
+the same statistics. Only the times differ.
+
+Statistics per (method, point) over the shots where the method answered a depth
+(:func:`depth_stats`): bias, standard deviation, RMSE, detection rate, and the count of
+*confident wrong* depths (farther from the truth than ``Method.error_bound_m``).
+
+Timing: ``us_per_waveform`` is the time of ``Method.estimate`` alone (not ``prepare``, not the
+simulation) per shot, after one warm-up call per worker process (Numba compiles on the first
+call), with Numba limited to one thread so that a figure is per core: the total time over the
+shots of the summary depths (1-26 m) divided by their number, as seed 001 averages over its
+waveforms. Not the fastest chunk: a method answers a deep, empty waveform much faster than
+a shallow one, and the fastest chunk would measure only that. ``us_per_waveform_all`` is the
+same over every depth of the sweep. Chunks run in parallel on a shared machine, so the
+figures include whatever the neighbours take; ratios between methods are the robust part.
+
+The bench (:func:`bench_accuracy`, ``albcap bench accuracy``) runs the depth sweep of every
+method of ``model.methods.METHODS`` on seed 000's scene, the one-channel and ``paper``-stitch
+side studies, and scores the issue's targets (:func:`targets`); ``docs/results.md`` shows it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import sys
+import time
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+from dask.callbacks import Callback
+
+__all__ = ["CHUNK", "DEPTHS_FULL", "DEPTHS_QUICK", "N_FULL", "N_MAX_FULL", "N_MAX_QUICK",
+           "N_QUICK", "PAPERS", "MethodSpec", "Point", "Sweep", "bench_accuracy", "chunk_seed",
+           "depth_stats", "load_methods", "method_specs", "run_chunk", "run_sweeps",
+           "summarize", "survey_base", "targets"]
+
+#: Shots per Dask task (a chunk): large enough that a task's fixed cost (the Monte Carlo
+#: kernels of the simulator, about 0.3 s) stays small, small enough to balance two workers.
+CHUNK = 250
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """One method as a sweep runs it: a name (JSON key), the class and constructor arguments.
+
+    ``n_max`` caps the shots per point for a method too slow for the full count (stated in
+    the JSON as ``n_per_depth``). ``stitch="paper"`` runs an on-chip method with seed 000's
+    eq. 1 in the stitch register instead of the ``linear`` rule (the on-chip methods'
+    ``stitch`` argument; study only).
+    """
+
+    name: str
+    cls: type
+    kwargs: tuple = ()
+    n_max: int | None = None
+    stitch: str = "linear"
+
+    def make(self):
+        kwargs = dict(self.kwargs)
+        if self.stitch != "linear":
+            if not getattr(self.cls, "bit_exact", False):
+                raise ValueError(f"{self.cls.name} has no stitch register; 'paper' applies to "
+                                 "the on-chip methods only")
+            kwargs["stitch"] = self.stitch
+        return self.cls(**kwargs)
+
+
+@dataclass(frozen=True)
+class Point:
+    """One point of a sweep.
+
+    Attributes
+    ----------
+    scene : sim.scene.Scene
+        The scene the shots come from.
+    depth_m : float
+        True depth [m] (``nan``: no bottom).
+    x : float
+        Value of the swept parameter (in the sweep's unit), for tables and charts.
+    survey : sim.scene.Scene or None
+        The scene the methods are prepared for and see in ``Shots.setup`` (what the survey
+        knows); ``None``: ``scene``. The stability suite keeps the nominal survey while the
+        water, the sun or the bottom change under it.
+    photon : tuple or None
+        Photon-counting shots of this point: ``()`` for ``depth_m`` with seed 004's
+        defaults, ``(depth_m, ((key, value), ...))`` for other depth and parameters of
+        ``sim.photon.simulate_shots``, ``None`` where the point has no photon-counting twin
+        (photon methods are then not run there).
+    """
+
+    scene: object
+    depth_m: float
+    x: float
+    survey: object = None
+    photon: tuple | None = ()
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """Points x methods, ``n`` shots per point.
+
+    ``stream`` (default ``name``) enters every task's seed: two sweeps of one stream and
+    the same points read the very same shots.
+    """
+
+    name: str
+    points: tuple
+    methods: tuple
+    n: int
+    seed: int = 0
+    stream: str = ""
+
+
+def survey_base(preset_name: str = "seed000"):
+    """The scene of the study: the preset with the gate opening early enough for the on-chip
+    noise windows (``firmware_host.coeffs.survey_scene``)."""
+    from firmware_host.coeffs import survey_scene
+    from sim.scene import preset
+
+    return survey_scene(preset(preset_name))
+
+
+def load_methods() -> dict:
+    """``model.methods.METHODS`` (name -> class), or an empty dict while it does not exist."""
+    try:
+        from model.methods import METHODS
+    except ImportError:
+        return {}
+    return dict(METHODS)
+
+
+def method_specs(names=None, methods=None, n_max=None, **kwargs) -> tuple:
+    """:class:`MethodSpec` for ``names`` (default: all of ``methods``, default
+    :func:`load_methods`), with the same constructor ``kwargs`` for each.
+
+    Raises ``ValueError`` naming an unknown method and the known ones.
+    """
+    methods = load_methods() if methods is None else methods
+    names = list(methods) if names is None else list(names)
+    unknown = [n for n in names if n not in methods]
+    if unknown:
+        raise ValueError(f"unknown method {unknown[0]!r}; known: {sorted(methods)}")
+    n_max = n_max or {}
+    return tuple(MethodSpec(n, methods[n], tuple(sorted(kwargs.items())), n_max.get(n))
+                 for n in names)
+
+
+def chunk_seed(sweep_name: str, base_seed: int, point_index: int, chunk: int) -> int:
+    """The seed of one task: a function of (sweep, base seed, point, chunk) only [int < 2**31].
+
+    ``zlib.crc32`` and not ``hash``: string hashes change between processes.
+    """
+    ss = np.random.SeedSequence([base_seed, zlib.crc32(sweep_name.encode()), point_index, chunk])
+    return int(ss.generate_state(1, np.uint32)[0] >> 1)
+
+
+def depth_stats(truth_m, depth_m, detected, bound_m: float) -> dict:
+    """Bias, spread and detection of one method at one point.
+
+    Parameters
+    ----------
+    truth_m : array_like float (n,)
+        True depths [m]; ``nan`` where there is no bottom (every detection is then wrong).
+    depth_m : array_like float (n,)
+        Measured depths [m] (read only where ``detected``).
+    detected : array_like bool (n,)
+    bound_m : float
+        The method's stated error bound [m].
+
+    Returns
+    -------
+    dict
+        ``n``, ``n_detected``, ``detection_rate`` (0..1), ``bias_m`` (mean error), ``std_m``
+        (sample standard deviation, ``ddof=1``), ``rmse_m``, each over the detected shots with
+        a bottom (``None`` where there are none; ``std_m`` needs two), ``n_wrong`` (detected
+        farther than ``bound_m`` from the truth, or detected without a bottom), ``n_ok``
+        (detected within the bound: a *successful extraction*).
+    """
+    truth = np.asarray(truth_m, dtype=np.float64)
+    est = np.asarray(depth_m, dtype=np.float64)
+    det = np.asarray(detected, dtype=bool)
+    if not truth.shape == est.shape == det.shape or truth.ndim != 1:
+        raise ValueError(f"truth_m, depth_m and detected must have one shape (n,), not "
+                         f"{truth.shape}, {est.shape}, {det.shape}")
+    has_b = np.isfinite(truth)
+    err = (est - truth)[det & has_b]
+    bad = det & ~(has_b & (np.abs(est - truth) <= bound_m))
+    n = int(truth.size)
+    return {
+        "n": n,
+        "n_detected": int(det.sum()),
+        "detection_rate": float(det.mean()) if n else 0.0,
+        "bias_m": float(err.mean()) if err.size else None,
+        "std_m": float(err.std(ddof=1)) if err.size > 1 else None,
+        "rmse_m": float(np.sqrt(np.mean(err ** 2))) if err.size else None,
+        "n_wrong": int(bad.sum()),
+        "n_ok": int((det & ~bad).sum()),
+    }
+
+
+# ---------------------------------------------------------------------------- one task
+
+#: Per worker process: prepared method instances, keyed by (spec, scene), warmed up once.
+_PREPARED: dict = {}
+
+
+def _prepared(spec: MethodSpec, shots):
+    """The method of ``spec`` prepared for ``shots.setup`` (once per process and survey)."""
+    key = (spec.name, spec.kwargs, spec.stitch, repr(shots.setup.scene), shots.setup.dt_s)
+    if key not in _PREPARED:
+        m = spec.make()
+        m.prepare(shots.setup)
+        m.estimate(_head(shots, 2))  # warm-up: Numba compiles on the first call
+        _PREPARED[key] = m
+    return _PREPARED[key]
+
+
+def _head(shots, k: int):
+    """The first ``k`` shots of a batch."""
+    k = min(k, len(shots))
+    return dataclasses.replace(
+        shots, adc=None if shots.adc is None else shots.adc[:k],
+        photon_times_s=None if shots.photon_times_s is None else shots.photon_times_s[:k],
+        truth_depth_m=shots.truth_depth_m[:k], truth_surface_s=shots.truth_surface_s[:k],
+        truth_bottom_s=shots.truth_bottom_s[:k])
+
+
+def _photon_window_s(depth_m: float, params: dict) -> float:
+    """A photon-counting gate long enough for the bottom at ``depth_m`` [s] (at least 100 ns)."""
+    from sim.photon import SEED004
+
+    n = params.get("n_water", SEED004["n_water"])
+    d = depth_m if math.isfinite(depth_m) else 0.0
+    return max(100e-9, params.get("pre_surface_s", 20e-9) + 2 * d * n / 299_792_458.0 + 30e-9)
+
+
+def run_chunk(point: Point, n: int, seed: int, specs: tuple) -> dict:
+    """Simulate ``n`` shots at ``point`` (seeded by ``seed``) and run every method of ``specs``.
+
+    A method's exception is caught and reported (its shots count as not detected): the study
+    records a failure instead of losing the sweep.
+
+    Returns
+    -------
+    dict
+        name -> ``{"truth", "depth", "detected"}`` (float64, float64, bool arrays (n,)),
+        ``"seconds"`` (``estimate`` time [s]), ``"nan"`` (shots whose answer held a NaN),
+        ``"bad_zero"`` (not detected but depth not 0.0) and ``"error"`` (``None`` or the
+        exception's text).
+    """
+    import numba
+
+    from sim.shots import make_photon_shots, make_shots, setup_for
+
+    with contextlib.suppress(ValueError):  # a figure per core (module docstring)
+        numba.set_num_threads(1)
+    out = {}
+    adc_shots = photon_shots = None
+    for spec in specs:
+        k = n if spec.n_max is None else min(n, spec.n_max)
+        if k <= 0:
+            continue
+        if spec.cls.photon:
+            if point.photon is None:
+                continue
+            if photon_shots is None:
+                depth, params = point.photon or (point.depth_m, ())
+                p = {"window_s": _photon_window_s(depth, dict(params)), **dict(params)}
+                photon_shots = make_photon_shots(depth, n, seed, **p)
+            shots = _head(photon_shots, k)
+        else:
+            if adc_shots is None:
+                adc_shots = make_shots(point.scene, point.depth_m, n, seed)
+                if point.survey is not None:
+                    adc_shots = dataclasses.replace(adc_shots, setup=setup_for(point.survey))
+            shots = _head(adc_shots, k)
+        out[spec.name] = _run_one(spec, shots)
+    return out
+
+
+def _run_one(spec: MethodSpec, shots) -> dict:
+    truth = np.asarray(shots.truth_depth_m, dtype=np.float64)
+    k = truth.size
+    res = {"truth": truth, "depth": np.zeros(k), "detected": np.zeros(k, bool),
+           "seconds": 0.0, "nan": 0, "bad_zero": 0, "error": None}
+    try:
+        m = _prepared(spec, shots)
+        t0 = time.perf_counter()
+        est = m.estimate(shots)
+        res["seconds"] = time.perf_counter() - t0
+        depth = np.asarray(est.depth_m, dtype=np.float64)
+        det = np.asarray(est.detected, dtype=bool)
+        if depth.shape != (k,) or det.shape != (k,):
+            raise ValueError(f"estimate gave shapes {depth.shape}, {det.shape} for {k} shots")
+    except Exception as exc:  # any failure of a method is a result here, not a crash
+        res["error"] = f"{type(exc).__name__}: {exc}"
+        return res
+    nan = ~np.isfinite(depth) | ~np.isfinite(est.surface_s) | ~np.isfinite(est.bottom_s)
+    res["nan"] = int(nan.sum())
+    res["bad_zero"] = int(np.sum(~det & (depth != 0.0)))
+    res["depth"] = np.where(nan, 0.0, depth)
+    res["detected"] = det & ~nan  # a NaN depth never counts as an answer
+    return res
+
+
+# ---------------------------------------------------------------------------- Dask
+
+def _chunks(n: int) -> list[int]:
+    return [min(CHUNK, n - lo) for lo in range(0, n, CHUNK)]
+
+
+def _tasks(sweeps):
+    """(key, point, n, seed, specs) per task, in a fixed order."""
+    for sw in sweeps:
+        for i, pt in enumerate(sw.points):
+            lo = 0
+            for c, size in enumerate(_chunks(sw.n)):
+                # a method capped at n_max takes only the first chunks (the same shots)
+                specs = tuple(s for s in sw.methods if s.n_max is None or s.n_max > lo)
+                specs = tuple(dataclasses.replace(s, n_max=None if s.n_max is None
+                                                  else s.n_max - lo) for s in specs)
+                seed = chunk_seed(sw.stream or sw.name, sw.seed, i, c)
+                yield (sw.name, i, c), pt, size, seed, specs
+                lo += size
+
+
+class _TaskBar(Callback):
+    """Advances a tqdm bar for every finished ``run_chunk`` task of a local scheduler (dask's
+    own bar redraws every 0.1 s, which floods a log)."""
+
+    def __init__(self, bar):
+        super().__init__()
+        self._bar = bar
+
+    def _posttask(self, key, result, dsk, state, worker_id):
+        if isinstance(result, dict):  # a run_chunk result, not a task packing its arguments
+            self._bar.update(1)
+
+
+def _compute(delayed, scheduler, progress: bool):
+    """Run the delayed tasks on ``scheduler``: a local Dask scheduler name, a
+    ``distributed.Client`` or a scheduler address; results in the order given."""
+    import dask
+    from tqdm import tqdm
+
+    local = ("sync", "synchronous", "single-threaded", "threads", "threading", "processes",
+             "multiprocessing")
+    if scheduler is None or scheduler in local:
+        with tqdm(total=len(delayed), disable=not progress, file=sys.stderr, desc="chunks",
+                  mininterval=2.0) as bar, _TaskBar(bar):
+            return list(dask.compute(*delayed, scheduler=scheduler or "processes"))
+    from distributed import Client, as_completed
+
+    own = not isinstance(scheduler, Client)
+    client = Client(scheduler) if own else scheduler
+    try:
+        futures = client.compute(delayed)
+        for _ in tqdm(as_completed(futures), total=len(futures), disable=not progress,
+                      file=sys.stderr, desc="tasks"):
+            pass
+        return client.gather(futures)
+    finally:
+        if own:
+            client.close()
+
+
+def run_sweeps(sweeps, scheduler=None, progress: bool = True) -> dict:
+    """Run ``sweeps`` as one Dask graph and gather per-point, per-method results.
+
+    Parameters
+    ----------
+    sweeps : sequence of Sweep
+    scheduler : None, str or distributed.Client
+        ``None`` (local processes), a local scheduler name (``"sync"``, ``"threads"``,
+        ``"processes"``), a scheduler address (``"tcp://host:8786"``) or a Client.
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        sweep name -> list (one per point) of dict method name -> ``None`` (not run there:
+        a photon method where the point has no photon twin) or ``depth_stats`` fields plus
+        ``seconds`` (``estimate`` time) over ``n_timed`` shots, ``us_chunks`` (per-chunk
+        figures [us per shot]), ``nan``, ``bad_zero``, ``errors`` (distinct exception texts)
+        and ``has_bottom``.
+    """
+    import dask
+
+    tasks = list(_tasks(sweeps))
+    run = dask.delayed(run_chunk, pure=True)
+    delayed = [run(pt, n, seed, specs) for _key, pt, n, seed, specs in tasks]
+    results = _compute(delayed, scheduler, progress)
+    merged: dict = {}
+    for (key, *_rest), res in zip(tasks, results, strict=True):
+        merged.setdefault(key[:2], []).append(res)  # chunks stay in chunk order
+    out = {}
+    for sw in sweeps:
+        rows = []
+        for i, _pt in enumerate(sw.points):
+            row = {}
+            for spec in sw.methods:
+                parts = [r[spec.name] for r in merged[(sw.name, i)] if spec.name in r]
+                row[spec.name] = _merge(parts, spec) if parts else None
+            rows.append(row)
+        out[sw.name] = rows
+    return out
+
+
+def _merge(parts, spec) -> dict:
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in ("truth", "depth", "detected")}
+    stats = depth_stats(cat["truth"], cat["depth"], cat["detected"], spec.cls.error_bound_m)
+    us = [p["seconds"] / p["truth"].size * 1e6 for p in parts
+          if p["error"] is None and p["truth"].size]
+    timed = [p for p in parts if p["error"] is None]
+    stats.update(
+        seconds=sum(p["seconds"] for p in timed),
+        n_timed=sum(p["truth"].size for p in timed),
+        us_chunks=us,
+        nan=sum(p["nan"] for p in parts),
+        bad_zero=sum(p["bad_zero"] for p in parts),
+        errors=sorted({p["error"] for p in parts if p["error"]}),
+        has_bottom=bool(np.isfinite(cat["truth"]).any()),
+    )
+    return stats
+
+
+# ---------------------------------------------------------------------------- the bench
+
+#: Depths of the full sweep [m] (seed 000 Tables 1-2 water, 1 to 40 m) and of ``--quick``.
+DEPTHS_FULL = tuple(float(d) for d in range(1, 41))
+DEPTHS_QUICK = (1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 24.0, 26.0, 28.0, 30.0, 35.0, 40.0)
+#: Shots per depth: seed 000's 1000 in the full run, and the ``--quick`` count.
+N_FULL, N_QUICK = 1000, 40
+#: Shots per depth of the methods too slow for the full count, in the full and quick runs
+#: (measured here: gpg_lm about 30-70 ms, weibull_eemd about 0.3-0.9 s per waveform).
+N_MAX_FULL = {"gpg_lm": 100, "weibull_eemd": 20, "richardson_lucy": 250}
+N_MAX_QUICK = {"gpg_lm": 20, "weibull_eemd": 5}
+#: Depth range of the summary figures, as seed 000 Table 4 [m].
+SUMMARY_RANGE_M = (1.0, 26.0)
+#: A depth counts as reached when at least this share of its shots is detected.
+REACH_RATE = 0.5
+#: Figures to beat (seed 000 Table 4, seed 001 Table 4).
+PAPERS = {
+    "seed000": {"method": "Gaussian + pentagon fit, 3 channels", "max_depth_m": 26.0,
+                "bias_m": 0.034, "std_m": 0.009, "detection_rate": 0.954},
+    "seed001_adaptive": {"method": "adaptive matched filter", "us_per_waveform": 6148.0,
+                         "rmse_m": 0.263, "detection_rate": 0.954},
+    "seed001_deconvolution": {"method": "Richardson-Lucy deconvolution",
+                              "us_per_waveform": 32564.0, "rmse_m": 0.227,
+                              "detection_rate": 0.953},
+}
+#: The methods issue 6 names, in its order (the JSON lists those not written yet).
+ISSUE_METHODS = ("fixed_mf", "adaptive_mf", "peaks_float", "threshold", "gpg_lm",
+                 "weibull_eemd", "richardson_lucy", "photon_hist")
+#: Methods of the side studies (the first that exist): one channel against three, and the
+#: ``paper`` stitch against ``linear`` (on-chip only: the float methods have no stitch switch).
+ONE_CHANNEL_METHODS = ("adaptive_mf", "peaks_float")
+PAPER_STITCH_METHODS = ("adaptive_mf", "fixed_mf")
+
+
+def _r(x, nd=6):
+    return None if x is None else round(float(x), nd)
+
+
+def summarize(rows: list, depths, lo_hi=SUMMARY_RANGE_M) -> dict:
+    """Summary of one method's per-depth rows over the depths within ``lo_hi`` [m].
+
+    ``bias_m`` and ``std_m`` are the means of the per-depth figures (seed 000 Table 4 gives
+    the overall bias and spread over its depths so), ``abs_bias_m`` the mean of ``|bias|``
+    (no cancelling between depths), ``rmse_m`` and ``detection_rate`` pooled over all shots,
+    ``max_depth_m`` the deepest depth of the whole sweep detected at ``REACH_RATE`` or more.
+    """
+    sel = [(d, r) for d, r in zip(depths, rows, strict=True) if lo_hi[0] <= d <= lo_hi[1]]
+    with_b = [r for _d, r in sel if r["bias_m"] is not None]
+    with_s = [r for _d, r in sel if r["std_m"] is not None]
+    n = sum(r["n"] for _d, r in sel)
+    n_det = sum(r["n_detected"] for _d, r in sel)
+    sq = sum(r["rmse_m"] ** 2 * r["n_detected"] for r in with_b)
+    reached = [d for d, r in zip(depths, rows, strict=True) if r["detection_rate"] >= REACH_RATE]
+    return {
+        "depth_range_m": list(lo_hi),
+        "bias_m": _r(np.mean([r["bias_m"] for r in with_b])) if with_b else None,
+        "abs_bias_m": _r(np.mean([abs(r["bias_m"]) for r in with_b])) if with_b else None,
+        "max_abs_bias_m": _r(max(abs(r["bias_m"]) for r in with_b)) if with_b else None,
+        "std_m": _r(np.mean([r["std_m"] for r in with_s])) if with_s else None,
+        "rmse_m": _r(math.sqrt(sq / n_det)) if n_det else None,
+        "detection_rate": _r(n_det / n) if n else None,
+        "max_depth_m": max(reached) if reached else None,
+        "n_wrong": sum(r["n_wrong"] for r in rows),
+    }
+
+
+def _us(parts) -> float | None:
+    n = sum(s["n_timed"] for s in parts)
+    return _r(sum(s["seconds"] for s in parts) / n * 1e6, 2) if n else None
+
+
+def _method_json(spec: MethodSpec, points, rows: list, n: int) -> dict:
+    per = []
+    timed, in_range = [], []
+    errors = set()
+    lo, hi = SUMMARY_RANGE_M
+    for pt, row in zip(points, rows, strict=True):
+        s = row[spec.name]
+        if s is None:
+            continue
+        timed.append(s)
+        if lo <= pt.x <= hi:
+            in_range.append(s)
+        errors.update(s["errors"])
+        per.append({"depth_m": pt.x, "n": s["n"], "n_detected": s["n_detected"],
+                    "detection_rate": _r(s["detection_rate"]), "bias_m": _r(s["bias_m"]),
+                    "std_m": _r(s["std_m"]), "rmse_m": _r(s["rmse_m"]), "n_ok": s["n_ok"],
+                    "n_wrong": s["n_wrong"], "nan": s["nan"]})
+    depths = [r["depth_m"] for r in per]
+    return {"name": spec.name, "label": spec.cls.label or spec.cls.name,
+            "bit_exact": bool(spec.cls.bit_exact), "photon": bool(spec.cls.photon),
+            "error_bound_m": spec.cls.error_bound_m, "stitch": spec.stitch,
+            "n_per_depth": n if spec.n_max is None else min(n, spec.n_max),
+            "us_per_waveform": _us(in_range), "us_per_waveform_all": _us(timed),
+            "errors": sorted(errors), "summary": summarize(per, depths), "per_depth": per}
+
+
+def targets(methods: list) -> dict:
+    """Whether the issue's targets are met, from the ``methods`` list of the JSON.
+
+    The *best* method is the one meeting most of the four accuracy targets (ties: lowest
+    RMSE over 1-26 m); the on-chip path is ``adaptive_mf``; the best offline method is the
+    float, non-photon method of lowest RMSE over 1-26 m.
+    """
+    def acc(m):
+        s = m["summary"]
+        return {
+            "abs_bias": s["abs_bias_m"] is not None and s["abs_bias_m"] <= 0.016,
+            "std": s["std_m"] is not None and s["std_m"] <= 0.009,
+            "detection": s["detection_rate"] is not None and s["detection_rate"] >= 0.99,
+            "reach": s["max_depth_m"] is not None and s["max_depth_m"] >= 30.0,
+        }
+
+    def rmse(m):
+        r = m["summary"]["rmse_m"]
+        return math.inf if r is None else r
+
+    out = []
+    if methods:
+        best = max(methods, key=lambda m: (sum(acc(m).values()), -rmse(m)))
+        s, a = best["summary"], acc(best)
+        out += [
+            {"id": "abs_bias", "text": "best method mean abs(bias) <= 1.6 cm (1-26 m)",
+             "method": best["name"], "value": s["abs_bias_m"], "met": a["abs_bias"]},
+            {"id": "std", "text": "best method std <= 0.9 cm (1-26 m)",
+             "method": best["name"], "value": s["std_m"], "met": a["std"]},
+            {"id": "detection", "text": "best method detection >= 99 % (1-26 m)",
+             "method": best["name"], "value": s["detection_rate"], "met": a["detection"]},
+            {"id": "reach", "text": f"best method detects to 30 m (>= {REACH_RATE:.0%})",
+             "method": best["name"], "value": s["max_depth_m"], "met": a["reach"]},
+        ]
+    chip = next((m for m in methods if m["name"] == "adaptive_mf"), None)
+    offline = [m for m in methods if not m["bit_exact"] and not m["photon"]
+               and m["summary"]["rmse_m"] is not None]
+    if chip is not None and offline and chip["summary"]["rmse_m"] is not None:
+        ref = min(offline, key=rmse)
+        ratio = chip["summary"]["rmse_m"] / ref["summary"]["rmse_m"]
+        out.append({"id": "onchip_rmse", "text": "on-chip adaptive RMSE <= 2 x best offline",
+                    "method": f"adaptive_mf vs {ref['name']}", "value": _r(ratio, 3),
+                    "met": ratio <= 2.0})
+        if chip["us_per_waveform"] and ref["us_per_waveform"]:
+            speed = ref["us_per_waveform"] / chip["us_per_waveform"]
+            out.append({"id": "onchip_speed", "text": "on-chip adaptive >= 100 x faster than "
+                        "the best offline", "method": f"adaptive_mf vs {ref['name']}",
+                        "value": _r(speed, 1), "met": speed >= 100.0})
+    return {"targets": out, "all_met": bool(out) and all(t["met"] for t in out)}
+
+
+def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
+                   names=None, n: int | None = None, depths=None, seed: int = 0) -> dict:
+    """``albcap bench accuracy``: the depth sweep of every method and the side studies.
+
+    Parameters
+    ----------
+    quick : bool
+        :data:`DEPTHS_QUICK` and :data:`N_QUICK` shots (caps :data:`N_MAX_QUICK`) instead of
+        the full run (:data:`DEPTHS_FULL`, :data:`N_FULL`, caps :data:`N_MAX_FULL`).
+    scheduler, progress
+        As :func:`run_sweeps`.
+    names : list of str, optional
+        Methods (default: all of ``model.methods.METHODS``).
+    n : int, optional
+        Shots per depth (overrides the default of the run).
+    depths : sequence of float, optional
+        Depths [m] (overrides the default of the run).
+
+    Returns
+    -------
+    dict
+        The JSON of ``docs/results.md``: ``methods`` (each with ``name``, ``us_per_waveform``,
+        ``summary`` and ``per_depth`` rows ``depth_m``, ``bias_m``, ``std_m``, ``rmse_m``,
+        ``detection_rate``, ...), ``variants`` (``one_channel``, ``stitch_paper``), ``papers``,
+        ``targets`` and the run's sizes.
+    """
+    n = (N_QUICK if quick else N_FULL) if n is None else n
+    if not (isinstance(n, int) and n >= 1):
+        raise ValueError(f"n must be an integer >= 1, not {n!r}")
+    depths = (DEPTHS_QUICK if quick else DEPTHS_FULL) if depths is None else tuple(depths)
+    if not depths or any(not (0 < float(d) <= 200) for d in depths):
+        raise ValueError(f"depths must be in 0 < depth <= 200 m, not {depths!r}")
+    known = load_methods()
+    specs = method_specs(names, known, n_max=N_MAX_QUICK if quick else N_MAX_FULL)
+    base = dataclasses.replace(survey_base(), max_depth_m=max(40.0, max(depths)))
+    pts = tuple(Point(base, float(d), float(d)) for d in depths)
+    one = dataclasses.replace(base, gains=(100.0, 100.0, 100.0))
+    side_n = n if quick else max(1, n // 4)
+    chosen = [s.name for s in specs]
+    sweeps = [Sweep("main", pts, specs, n, seed)]
+    one_specs = tuple(s for s in specs if s.name in ONE_CHANNEL_METHODS)
+    if one_specs:
+        sweeps.append(Sweep("one_channel", tuple(Point(one, p.depth_m, p.x) for p in pts),
+                            one_specs, side_n, seed))
+    paper_specs = tuple(dataclasses.replace(s, stitch="paper") for s in specs
+                        if s.name in PAPER_STITCH_METHODS)
+    if paper_specs:
+        # the stream of "main": the paper rule reads the very same shots as the linear one
+        sweeps.append(Sweep("stitch_paper", pts, paper_specs, side_n, seed, stream="main"))
+    t0 = time.perf_counter()
+    res = run_sweeps(sweeps, scheduler=scheduler, progress=progress)
+    elapsed = time.perf_counter() - t0
+    methods = [_method_json(s, pts, res["main"], n) for s in specs]
+    variants = {}
+    if one_specs:
+        variants["one_channel"] = {
+            "description": "the high-gain channel alone (gains 100/100/100: every channel "
+                           "clips where the high one does), linear stitch",
+            "methods": [_method_json(s, pts, res["one_channel"], side_n) for s in one_specs]}
+    if paper_specs:
+        variants["stitch_paper"] = {
+            "description": "seed 000 eq. 1 (paper) in the stitch register instead of linear; "
+                           "the first shots of the main sweep",
+            "methods": [_method_json(s, pts, res["stitch_paper"], side_n)
+                        for s in paper_specs]}
+    return {"format": "albcap-accuracy-1", "quick": quick, "seed": seed,
+            "scene": "seed000 preset, survey gate (firmware_host.coeffs.survey_scene)",
+            "depths_m": [float(d) for d in depths], "n_per_depth": n,
+            "n_per_depth_variants": side_n, "chunk": CHUNK, "methods_run": chosen,
+            "methods_missing": [m for m in ISSUE_METHODS if m not in known],
+            "elapsed_s": round(elapsed, 1), "methods": methods, "variants": variants,
+            "papers": PAPERS, **targets(methods)}

@@ -1,0 +1,187 @@
+"""Command-line front end of the accuracy study: ``bench accuracy``, ``bench regimes``, ``chart``.
+
+``albcap bench accuracy [--quick] [--json]`` and ``albcap bench regimes [--quick] [--json]``
+write their JSON to ``docs/figures/accuracy.json`` and ``docs/figures/regimes.json`` (``--out``)
+and print a table (or, with ``--json``, the JSON). ``albcap chart`` reads them back and draws
+the charts; ``albcap chart --results docs/results.md`` also refreshes the page's generated
+tables. Sweeps run on Dask: local processes by default, ``--scheduler sync|threads|processes``
+or the address of a ``dask.distributed`` scheduler.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+__all__ = ["register", "register_bench"]
+
+_LOCAL = ("sync", "threads", "processes")
+_ADDRESS = re.compile(r"^([a-z]+://)?[\w.\-\[\]:]+:\d+$")
+
+
+def _scheduler(text: str) -> str:
+    if text in _LOCAL or _ADDRESS.match(text):
+        return text
+    raise ValueError(f"--scheduler must be sync, threads, processes or a scheduler address "
+                     f"(tcp://host:port), not {text!r}")
+
+
+def _names(text: str | None):
+    return None if text is None else [s.strip() for s in text.split(",") if s.strip()]
+
+
+def _depths(text: str | None):
+    if text is None:
+        return None
+    try:
+        return [float(s) for s in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--depths must be comma-separated numbers (m), not {text!r}") from None
+
+
+def _shots(text: str | None):
+    if text is None:
+        return None
+    if not text.isdigit() or int(text) < 1:
+        raise ValueError(f"--shots must be an integer >= 1, not {text!r}")
+    return int(text)
+
+
+def _f(x, scale: float = 100.0, nd: int = 2) -> str:
+    """``x`` times ``scale`` with ``nd`` decimals, or ``-`` for None (table cells)."""
+    return "-" if x is None else f"{x * scale:.{nd}f}"
+
+
+def _write(path: str, res: dict) -> Path:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps(res, indent=1) + "\n")
+    return p
+
+
+def _cmd_bench_accuracy(args) -> int:
+    from .accuracy import bench_accuracy
+
+    sched, names = _scheduler(args.scheduler), _names(args.methods)
+    depths, n = _depths(args.depths), _shots(args.shots)
+    res = bench_accuracy(quick=args.quick, scheduler=sched, progress=not args.no_progress,
+                         names=names, n=n, depths=depths, seed=args.seed)
+    out = _write(args.out, res)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    print(f"{'method':16s} {'us/wf':>8s} {'|bias| cm':>9s} {'std cm':>7s} {'RMSE cm':>8s} "
+          f"{'det 1-26':>8s} {'reach m':>7s} {'wrong':>6s}")
+    for m in res["methods"]:
+        s = m["summary"]
+        print(f"{m['name']:16s} {_f(m['us_per_waveform'], 1, 1):>8s} {_f(s['abs_bias_m']):>9s} "
+              f"{_f(s['std_m']):>7s} {_f(s['rmse_m']):>8s} {_f(s['detection_rate'], 100, 1):>8s} "
+              f"{_f(s['max_depth_m'], 1, 0):>7s} {s['n_wrong']:>6d}")
+    for t in res["targets"]:
+        print(f"target {'met    ' if t['met'] else 'NOT met'}: {t['text']} "
+              f"({t['method']}: {t['value']})")
+    print(f"wrote {out}")
+    return 0
+
+
+def _cmd_bench_regimes(args) -> int:
+    from .accuracy import N_MAX_QUICK, method_specs
+    from .regimes import N_MAX_REGIMES, bench_regimes
+
+    sched = _scheduler(args.scheduler)
+    caps = N_MAX_QUICK if args.quick else N_MAX_REGIMES
+    specs = method_specs(_names(args.methods), n_max=caps)
+    n = _shots(args.shots) or (20 if args.quick else 100)
+    res = bench_regimes(specs, n=n, quick=args.quick, scheduler=sched,
+                        progress=not args.no_progress, seed=args.seed)
+    out = _write(args.out, res)
+    if args.json:
+        print(json.dumps(res, indent=1))
+    else:
+        for r in res["regimes"]:
+            worst = {m: max((p["methods"][m]["failure_rate"] for p in r["points"]
+                             if p["methods"][m] is not None), default=None)
+                     for m in r["points"][0]["methods"]}
+            print(f"{r['name']:17s} worst failure: " +
+                  ", ".join(f"{m} {v:.0%}" for m, v in worst.items() if v is not None))
+        print(f"{len(res['violations'])} invariant violations")
+        for v in res["violations"]:
+            print(f"  {v}")
+        print(f"wrote {out}")
+    return 1 if res["violations"] else 0
+
+
+def _read(path: str, what: str):
+    p = Path(path)
+    if not p.exists():
+        return None
+    try:
+        return json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{p}: not valid JSON ({exc}); run `albcap bench {what}`") from None
+
+
+def _cmd_chart(args) -> int:
+    from .charts import render_results, result_tables, write_charts
+
+    acc = _read(args.accuracy, "accuracy")
+    reg = _read(args.regimes, "regimes")
+    if acc is None and reg is None:
+        raise ValueError(f"neither {args.accuracy} nor {args.regimes} exists; run "
+                         "`albcap bench accuracy` or `albcap bench regimes` first")
+    for path in write_charts(acc, reg, args.out_dir):
+        print(f"wrote {path}")
+    if args.results:
+        page = Path(args.results)
+        text = page.read_text()
+        new = render_results(text, result_tables(acc, reg))
+        if new != text:
+            page.write_text(new)
+            print(f"updated {page}")
+        else:
+            print(f"{page} is up to date")
+    return 0
+
+
+def _common(p, what: str) -> None:
+    from .charts import FIGURES
+
+    p.add_argument("--json", action="store_true", help="print the JSON instead of a table")
+    p.add_argument("--quick", action="store_true", help="a small, stated set")
+    p.add_argument("--scheduler", default="processes",
+                   help="sync, threads, processes (default) or a dask.distributed address")
+    p.add_argument("--methods", help="comma-separated method names (default: all)")
+    p.add_argument("--shots", help="shots per depth (or per regime point)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=str(FIGURES / f"{what}.json"),
+                   help=f"JSON file written (default docs/figures/{what}.json)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def register(sub) -> None:
+    """Add ``albcap chart``."""
+    from .charts import FIGURES
+
+    p = sub.add_parser("chart", help="charts (and docs/results.md tables) from the accuracy "
+                                     "and regimes benches' JSON")
+    p.add_argument("--accuracy", default=str(FIGURES / "accuracy.json"))
+    p.add_argument("--regimes", default=str(FIGURES / "regimes.json"))
+    p.add_argument("--out-dir", default=str(FIGURES), help="where the PNG and SVG go")
+    p.add_argument("--results", help="markdown page whose generated tables to refresh "
+                                     "(docs/results.md)")
+    p.set_defaults(func=_cmd_chart)
+
+
+def register_bench(bench_sub) -> None:
+    """Add ``albcap bench accuracy`` and ``albcap bench regimes``."""
+    p = bench_sub.add_parser("accuracy", help="bias, std, RMSE, detection and us/waveform of "
+                                              "every method over a depth sweep (Dask)")
+    _common(p, "accuracy")
+    p.add_argument("--depths", help="comma-separated depths, m (default: 1..40 m, or the "
+                                    "quick set)")
+    p.set_defaults(func=_cmd_bench_accuracy)
+    p = bench_sub.add_parser("regimes", help="stability suite: failure rates and invariants "
+                                             "of every method where methods fail (Dask)")
+    _common(p, "regimes")
+    p.set_defaults(func=_cmd_bench_regimes)
