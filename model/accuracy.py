@@ -467,6 +467,8 @@ ISSUE_METHODS = ("fixed_mf", "adaptive_mf", "peaks_float", "threshold", "gpg_lm"
 #: ``paper`` stitch against ``linear`` (on-chip only: the float methods have no stitch switch).
 ONE_CHANNEL_METHODS = ("adaptive_mf", "peaks_float")
 PAPER_STITCH_METHODS = ("adaptive_mf", "fixed_mf")
+#: Methods run again on seed 000's own kind of bottom (no pulse stretching): the fast ones.
+UNSTRETCHED_METHODS = ("fixed_mf", "adaptive_mf", "peaks_float", "threshold")
 
 
 def _r(x, nd=6):
@@ -606,7 +608,8 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
     dict
         The JSON of ``docs/results.md``: ``methods`` (each with ``name``, ``us_per_waveform``,
         ``summary`` and ``per_depth`` rows ``depth_m``, ``bias_m``, ``std_m``, ``rmse_m``,
-        ``detection_rate``, ...), ``variants`` (``one_channel``, ``stitch_paper``), ``papers``,
+        ``detection_rate``, ...), ``variants`` (``one_channel``, ``stitch_paper``,
+        ``unstretched`` with its own ``targets``), ``papers``,
         ``targets`` and the run's sizes.
     """
     n = (N_QUICK if quick else N_FULL) if n is None else n
@@ -632,6 +635,14 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
     if paper_specs:
         # the stream of "main": the paper rule reads the very same shots as the linear one
         sweeps.append(Sweep("stitch_paper", pts, paper_specs, side_n, seed, stream="main"))
+    uns_specs = tuple(s for s in specs if s.name in UNSTRETCHED_METHODS)
+    if uns_specs:
+        # Seed 000's simulator (Wa-LiD) has no pulse stretching: the cheapest fidelity level,
+        # forced by a tolerance no stretching reaches, is that bottom. The methods are prepared
+        # for this scene too (their banks and tables see the same unstretched bottom).
+        flat = dataclasses.replace(base, fidelity_tolerance_m=10.0)
+        sweeps.append(Sweep("unstretched", tuple(Point(flat, p.depth_m, p.x, photon=None)
+                                                 for p in pts), uns_specs, side_n, seed))
     t0 = time.perf_counter()
     res = run_sweeps(sweeps, scheduler=scheduler, progress=progress)
     elapsed = time.perf_counter() - t0
@@ -648,6 +659,12 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
                            "the first shots of the main sweep",
             "methods": [_method_json(s, pts, res["stitch_paper"], side_n)
                         for s in paper_specs]}
+    if uns_specs:
+        ms = [_method_json(s, pts, res["unstretched"], side_n) for s in uns_specs]
+        variants["unstretched"] = {
+            "description": "the bottom without pulse stretching (analytic fidelity), as seed "
+                           "000's Wa-LiD simulator; methods prepared for that scene",
+            "methods": ms, **targets(ms)}
     return {"format": "albcap-accuracy-1", "quick": quick, "seed": seed,
             "scene": "seed000 preset, survey gate (firmware_host.coeffs.survey_scene)",
             "depths_m": [float(d) for d in depths], "n_per_depth": n,

@@ -326,6 +326,7 @@ def _papers_table(acc: dict) -> str:
 
 
 def _targets_table(acc: dict) -> str:
+    """The targets of ``acc`` (the JSON, or a variant of it with its own ``targets``)."""
     rows = ["| target | method | value | met |", "|---|---|---:|---|"]
     for t in acc["targets"]:
         v = t["value"]
@@ -426,6 +427,11 @@ def result_tables(acc: dict | None, reg: dict | None) -> dict[str, str]:
                  targets=_targets_table(acc), per_depth=_depth_table(acc["methods"]),
                  channels=_variant_table(acc, "one_channel", ("3 ch", "1 ch")),
                  stitch=_variant_table(acc, "stitch_paper", ("linear", "paper")))
+        uns = acc["variants"].get("unstretched")
+        if uns:
+            t.update(unstretched=_variant_table(acc, "unstretched", ("MC", "unstretched")),
+                     unstretched_summary=_summary_table({**acc, "methods": uns["methods"]}),
+                     unstretched_targets=_targets_table(uns))
     if reg is not None:
         t["regimes"] = _regimes_table(reg)
     return t
@@ -437,7 +443,7 @@ def render_results(text: str, tables: dict[str, str]) -> str:
     A table whose results were not given keeps its old content.
     """
     known = {"run", "summary", "core", "papers", "targets", "per_depth", "channels", "stitch",
-             "regimes"}
+             "regimes", "unstretched", "unstretched_summary", "unstretched_targets"}
 
     def fill(m: re.Match) -> str:
         name = m.group(2)
