@@ -1,0 +1,378 @@
+"""The device's link side in hardware: the HDL twin of :mod:`model.device` (commands and acks).
+
+:class:`Link` receives command packets (:class:`~hdl.link_rx.LinkReceiver`), executes them
+against the register map, the shadow coefficient memory and the status inputs, and answers each
+with the acknowledgement bytes :class:`model.device.Device` sends, byte for byte
+(:class:`~hdl.link_tx.LinkTransmitter`, which also forwards the encoded frame packets of the
+frame path). Acquisition, the frame FIFO and the transmitter's line rate belong to the top level
+and the UART (:mod:`hdl.uart`); Link sees only their counters.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Const, Module, Mux, Signal
+from amaranth.lib import memory, stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.link import (
+    BANK_WORDS,
+    BANK_WRITE_MAX,
+    BODY_CRC,
+    FIFO_BYTES,
+    PROTOCOL_VERSION,
+    STATUS,
+    ErrorCode,
+    PacketType,
+)
+from model.matched_filter import K_MAX, L_MAX
+from model.registers import REGISTERS
+
+from .layouts import config_signature
+from .link_rx import LinkReceiver, check_buffer_bytes
+from .link_tx import ACK_INFO, FRAME_BYTE, LinkTransmitter
+from .matched_filter import COEF_WRITE
+
+__all__ = ["ACK_LATENCY", "GROUPS", "POWER_ON_COEF", "Link"]
+
+#: Register groups in map order; Link has one output ``cfg_<group>`` per group.
+GROUPS = tuple(dict.fromkeys(r.group for r in REGISTERS))
+#: The power-on bank of ``model.device.Device``: one template of one tap, ``h[0][0]``.
+POWER_ON_COEF = 1
+
+#: Clocks from a command's last byte taken on ``rx`` to its acknowledgement's first byte on
+#: ``tx`` (receiver caught up with the line, idle transmitter, ``tx`` ready), for the commands
+#: answered at once. Bytes arriving on every clock add two (the receiver's sync and header
+#: checks, each a clock of its own, fall behind the line).
+ACK_LATENCY = 14
+
+# payload bytes a command is checked and remembered by (BANK_COMMIT's K, L, crc is the longest)
+_KEY_BYTES = 6
+_FIXED_LENGTH = {
+    PacketType.PING: 0, PacketType.READ_REG: 2, PacketType.WRITE_REG: 6,
+    PacketType.BANK_CRC: 0, PacketType.BANK_COMMIT: 6, PacketType.START: 0,
+    PacketType.STOP: 0, PacketType.STATUS: 0,
+}
+_COMMANDS = [c for c in PacketType if c < PacketType.ACK]
+_J_BITS = (L_MAX - 1).bit_length()
+
+
+class Link(wiring.Component):
+    """Command side of the device: registers, coefficient bank, start/stop, status, acks.
+
+    Parameters
+    ----------
+    fifo_capacity : int
+        Frame FIFO capacity in bytes, reported by ``STATUS`` (the top level owns the FIFO).
+    rx_buffer : int
+        Receiver ring in bytes (power of two), see :class:`~hdl.link_rx.LinkReceiver`: packets
+        longer than ``rx_buffer - 10`` payload bytes are rejected at the header.
+
+    Attributes
+    ----------
+    rx : In(stream.Signature(8))
+        Bytes from the line.
+    tx : Out(stream.Signature(8))
+        Bytes to the line: acknowledgements and frame packets, whole, one after the other.
+    frame : In(stream.Signature(FRAME_BYTE))
+        Encoded ``FRAME`` packets, ``last`` on each packet's final byte.
+    cfg_stitch, cfg_gate, cfg_filter, cfg_peak : Out(config_signature(group))
+        The registers, reset values at power-on; ``wiring.connect`` them to the stages' ``cfg``.
+    coef : Out(stream.Signature(COEF_WRITE))
+        Coefficient writes into the matched filter: ``h[0][0] = 1`` after reset (the model's
+        power-on bank), then the ``K x L`` corner of the shadow at each commit.
+    templates, taps : Out
+        ``K`` and ``L`` of the active bank (1 and 1 at power-on).
+    bank_id : Out(8)
+        Commit count of the active bank.
+    frame_idle : In(1)
+        No frame in the filter: a commit's copy starts after a clock on which it and
+        ``bank_busy`` are both high, so it must be low from the clock after an admission on.
+    bank_busy : Out(1)
+        Registered; from a commit's CRC match to the end of its copy: admit no new frame. The
+        model switches banks the moment the command arrives; here frames already admitted
+        finish with the old bank (``docs/hdl.md``, Link (HDL), commit timing).
+    acquiring : Out(1)
+        Between ``START`` and ``STOP``.
+    frames_sent, frames_dropped, fifo_level, shots : In(32)
+        Status counters of the top level, reported by ``STATUS`` as they are when it executes.
+
+    Notes
+    -----
+    Latency, with the transmitter idle and ``tx`` ready: the first acknowledgement byte is on
+    ``tx`` ``ACK_LATENCY = 14`` clocks after the command's last byte was taken on ``rx`` (3 to
+    read the CRC byte, check it and deliver, 7 to fetch the payload head, 1 to decide, 2 to
+    start the packet), two more when the bytes came on consecutive clocks; an acknowledgement
+    of ``n`` payload bytes then takes ``12 + n`` clocks.
+    ``BANK_WRITE`` of ``n`` words adds ``2 n + 1`` clocks (a payload byte per clock),
+    ``BANK_CRC`` ``BANK_WORDS + 3`` (a shadow word per clock through the CRC), ``BANK_COMMIT``
+    ``BANK_WORDS + 4 + 2 K L`` once ``frame_idle`` is high (the copy writes a coefficient every
+    other clock). A command waits until the previous acknowledgement has left the transmitter
+    (one buffer, which keeps the last acknowledgement for a retry); meanwhile the receiver's
+    ring keeps taking bytes.
+    """
+
+    def __init__(self, fifo_capacity: int = FIFO_BYTES, rx_buffer: int = 2048):
+        if not 0 < fifo_capacity < 1 << 32:
+            raise ValueError(f"fifo_capacity must be in 1..2^32-1, not {fifo_capacity!r}")
+        self.fifo_capacity = fifo_capacity
+        self.rx_buffer = check_buffer_bytes(rx_buffer)
+        super().__init__({
+            "rx": In(stream.Signature(8)),
+            "tx": Out(stream.Signature(8)),
+            "frame": In(stream.Signature(FRAME_BYTE)),
+            **{f"cfg_{g}": Out(config_signature(g)) for g in GROUPS},
+            "coef": Out(stream.Signature(COEF_WRITE)),
+            "templates": Out(range(K_MAX + 1), init=1),
+            "taps": Out(range(L_MAX + 1), init=1),
+            "bank_id": Out(8),
+            "frame_idle": In(1),
+            "bank_busy": Out(1),
+            "acquiring": Out(1),
+            "frames_sent": In(32),
+            "frames_dropped": In(32),
+            "fifo_level": In(32),
+            "shots": In(32),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.receiver = rx = LinkReceiver(self.rx_buffer)
+        m.submodules.transmitter = tx = LinkTransmitter()
+        wiring.connect(m, wiring.flipped(self.rx), rx.i)
+        wiring.connect(m, tx.o, wiring.flipped(self.tx))
+        wiring.connect(m, wiring.flipped(self.frame), tx.frame)
+
+        shadow = m.submodules.shadow = memory.Memory(shape=16, depth=BANK_WORDS, init=[])
+        sw = shadow.write_port()
+        sr = shadow.read_port()
+        m.submodules.scan_crc = scan_crc = _bank_crc()
+
+        regs = [getattr(getattr(self, f"cfg_{r.group}"), r.name) for r in REGISTERS]
+        last_error = Signal(8)
+        status = self._status(m, rx.bad, last_error)
+
+        # the acknowledgement buffer: kept after sending, so a retried command is answered again
+        ack = Signal(ACK_INFO)
+        ack_valid = Signal()
+        m.d.comb += [tx.ack.valid.eq(ack_valid), tx.ack.payload.eq(ack)]
+        with m.If(tx.ack.ready):
+            m.d.sync += ack_valid.eq(0)
+
+        pkt = rx.pkt.payload
+        p = [Signal(8, name=f"p{n}") for n in range(_KEY_BYTES)]  # payload head, 0 past length
+        last = Signal(8 + 8 + 16 + 8 * _KEY_BYTES)  # type, seq, length, p of the last command
+        last_valid = Signal()
+        word = Cat(p[0], p[1])  # READ_REG/WRITE_REG address, BANK_WRITE first word
+        value = Cat(p[2], p[3], p[4], p[5])  # WRITE_REG value, BANK_COMMIT crc
+        k_new, l_new = p[0], p[1]
+        fetch = Signal(range(_KEY_BYTES + 1))
+        off = Signal(16)  # BANK_WRITE: payload byte read
+        got, got_hi, got_last = Signal(), Signal(), Signal()
+        lo = Signal(8)
+        waddr = Signal(range(BANK_WORDS + 1))
+        scan = Signal(range(BANK_WORDS + 3))
+        commit = Signal()  # the scan is a commit's check, not BANK_CRC
+        k, j = Signal(range(K_MAX)), Signal(_J_BITS)
+
+        key = Cat(pkt.type, pkt.seq, pkt.length, *p)
+        flags = self._checks(m, pkt, key, last, last_valid, regs, word, value, k_new, l_new)
+
+        def respond(err, data=None, nbytes=0):
+            err = Const(int(err), 8)
+            m.d.sync += [ack.length.eq(1 + nbytes),
+                         ack.data.eq(err if data is None else Cat(err, data)),
+                         ack_valid.eq(1)]
+            if err.value:
+                m.d.sync += last_error.eq(err)
+            m.next = "DONE"
+
+        with m.FSM():
+            with m.State("BOOT"):
+                m.d.comb += [self.coef.valid.eq(1), self.coef.payload.addr.eq(0),
+                             self.coef.payload.data.eq(POWER_ON_COEF)]
+                with m.If(self.coef.ready):
+                    m.next = "IDLE"
+            with m.State("IDLE"):
+                with m.If(rx.pkt.valid & ~ack_valid):
+                    m.d.sync += fetch.eq(0)
+                    m.next = "FETCH"
+            with m.State("FETCH"):
+                # one payload byte per clock, each the clock after its offset
+                m.d.comb += rx.rd_offset.eq(fetch)
+                m.d.sync += fetch.eq(fetch + 1)
+                with m.Switch(fetch):
+                    for n in range(1, _KEY_BYTES + 1):
+                        with m.Case(n):
+                            m.d.sync += p[n - 1].eq(Mux(n - 1 < pkt.length, rx.rd_data, 0))
+                with m.If(fetch == _KEY_BYTES):
+                    m.next = "CHECK"
+            with m.State("CHECK"):
+                # the checks of `flags` are registered on this clock, so DECIDE sees them as
+                # flip-flops (they are adders and comparators; their sum did not fit a clock)
+                m.next = "DECIDE"
+            with m.State("DECIDE"):
+                m.d.sync += [last.eq(key), last_valid.eq(1),
+                             ack.type.eq(PacketType.ACK | pkt.type[:7]), ack.seq.eq(pkt.seq)]
+                with m.If(flags["retry"]):
+                    # a retry (the model's rule): the same acknowledgement, nothing redone
+                    m.d.sync += ack_valid.eq(1)  # type and seq: the key's, as before
+                    m.next = "DONE"
+                with m.Else():
+                    self._execute(m, respond, flags, regs, word, value, status,
+                                  dict(off=off, got=got, waddr=waddr, scan=scan,
+                                       commit=commit))
+            with m.State("BANK_WRITE"):
+                m.d.comb += rx.rd_offset.eq(off)
+                m.d.sync += [off.eq(off + 1), got.eq(off < pkt.length), got_hi.eq(off[0]),
+                             got_last.eq(off + 1 == pkt.length)]
+                with m.If(got & ~got_hi):
+                    m.d.sync += lo.eq(rx.rd_data)
+                with m.If(got & got_hi):
+                    m.d.comb += [sw.en.eq(1), sw.addr.eq(waddr), sw.data.eq(Cat(lo, rx.rd_data))]
+                    m.d.sync += waddr.eq(waddr + 1)
+                    with m.If(got_last):
+                        respond(ErrorCode.OK)
+            with m.State("SCAN"):
+                # word a is read at scan = a, registered, and enters the CRC at scan = a + 2
+                # (the block RAM's slow output drives flip-flops, not the 16-bit CRC network)
+                m.d.comb += sr.addr.eq(scan)
+                m.d.sync += [scan.eq(scan + 1), scan_crc.data.eq(sr.data),
+                             scan_crc.start.eq(scan == 1),
+                             scan_crc.valid.eq((scan >= 1) & (scan <= BANK_WORDS))]
+                with m.If(scan == BANK_WORDS + 2):
+                    with m.If(~commit):
+                        respond(ErrorCode.OK, scan_crc.crc, 4)
+                    with m.Elif(scan_crc.crc != value):
+                        respond(ErrorCode.CRC_MISMATCH)
+                    with m.Else():
+                        m.d.sync += self.bank_busy.eq(1)
+                        m.next = "WAIT_IDLE"
+            with m.State("WAIT_IDLE"):
+                with m.If(self.frame_idle):
+                    m.d.sync += [k.eq(0), j.eq(0)]
+                    m.next = "COPY_READ"
+            with m.State("COPY_READ"):
+                m.d.comb += sr.addr.eq(Cat(j, k))
+                m.next = "COPY_WRITE"
+            with m.State("COPY_WRITE"):
+                m.d.comb += [sr.addr.eq(Cat(j, k)),  # holds the word read
+                             self.coef.valid.eq(1), self.coef.payload.addr.eq(Cat(j, k)),
+                             self.coef.payload.data.eq(sr.data)]
+                with m.If(self.coef.ready):
+                    m.d.sync += j.eq(j + 1)
+                    m.next = "COPY_READ"
+                    with m.If(j + 1 == l_new):
+                        m.d.sync += [j.eq(0), k.eq(k + 1)]
+                        with m.If(k + 1 == k_new):
+                            m.d.sync += [self.templates.eq(k_new), self.taps.eq(l_new),
+                                         self.bank_id.eq(self.bank_id + 1),
+                                         self.bank_busy.eq(0)]
+                            respond(ErrorCode.OK, (self.bank_id + 1)[:8], 1)
+            with m.State("DONE"):
+                m.d.comb += rx.pkt.ready.eq(1)
+                m.next = "IDLE"
+        return m
+
+    def _status(self, m, rx_bad, last_error):
+        """The ``STATUS`` record as one value, bytes little-endian in ``STATUS`` order."""
+        values = {
+            "frames_sent": self.frames_sent, "frames_dropped": self.frames_dropped,
+            "fifo_level": self.fifo_level, "fifo_capacity": Const(self.fifo_capacity, 32),
+            "rx_bad": rx_bad, "shots": self.shots, "last_error": last_error,
+            "acquiring": self.acquiring, "bank_id": self.bank_id,
+            "version": Const(PROTOCOL_VERSION, 8),
+        }
+        parts = []
+        for f in STATUS.fields:
+            s = Signal(f.bits, name=f"status_{f.name}")
+            m.d.comb += s.eq(values[f.name])  # KeyError here: a STATUS field Link does not know
+            parts.append(s)
+        return Cat(*parts)
+
+    def _checks(self, m, pkt, key, last, last_valid, regs, word, value, k_new, l_new):
+        """The tests a command's answer depends on, registered every clock (read in DECIDE)."""
+        f = {name: Signal(name=f"chk_{name}") for name in (
+            "retry", "known", "bad_length", "bad_address", "in_range", "bw_bad_length",
+            "bw_bad_address", "bad_kl")}
+        f.update({c: Signal(name=f"is_{c.name.lower()}") for c in _COMMANDS})
+        f["read"] = Signal(32, name="chk_read")
+        n_words = (pkt.length - 2)[1:16]
+        m.d.sync += [
+            f["retry"].eq(last_valid & (last == key) & (pkt.length <= _KEY_BYTES)),
+            f["known"].eq(0), f["bad_length"].eq(0), f["in_range"].eq(0), f["read"].eq(0),
+            f["bad_address"].eq(word >= len(REGISTERS)),
+            f["bw_bad_length"].eq((pkt.length < 4) | pkt.length[0]
+                                  | (pkt.length > 2 + 2 * BANK_WRITE_MAX)),
+            f["bw_bad_address"].eq(word + n_words > BANK_WORDS),
+            f["bad_kl"].eq((k_new < 1) | (k_new > K_MAX) | (l_new < 1) | (l_new > L_MAX)),
+        ]
+        m.d.sync += [f[c].eq(pkt.type == c) for c in _COMMANDS]
+        with m.Switch(pkt.type):
+            for c in _COMMANDS:
+                with m.Case(c):
+                    m.d.sync += f["known"].eq(1)
+                    if c in _FIXED_LENGTH:
+                        m.d.sync += f["bad_length"].eq(pkt.length != _FIXED_LENGTH[c])
+        with m.Switch(word):
+            for r, reg in zip(REGISTERS, regs, strict=True):
+                with m.Case(r.address):
+                    m.d.sync += [f["read"].eq(reg),
+                                 f["in_range"].eq((value >= r.lo) & (value <= r.hi))]
+        return f
+
+    def _execute(self, m, respond, f, regs, word, value, status, st):
+        """Decide a command that is not a retry (the model's ``Device._execute``)."""
+        with m.If(~f["known"]):
+            respond(ErrorCode.BAD_COMMAND)
+        with m.Elif(f["bad_length"]):
+            respond(ErrorCode.BAD_LENGTH)
+        with m.Elif(f[PacketType.PING]):
+            respond(ErrorCode.OK, Const(PROTOCOL_VERSION, 8), 1)
+        with m.Elif(f[PacketType.READ_REG] | f[PacketType.WRITE_REG]):
+            with m.If(f["bad_address"]):
+                respond(ErrorCode.BAD_ADDRESS)
+            with m.Elif(f[PacketType.READ_REG]):
+                respond(ErrorCode.OK, f["read"], 4)
+            with m.Elif(~f["in_range"]):
+                respond(ErrorCode.BAD_VALUE)
+            with m.Else():
+                with m.Switch(word):
+                    for r, reg in zip(REGISTERS, regs, strict=True):
+                        with m.Case(r.address):
+                            m.d.sync += reg.eq(value)
+                respond(ErrorCode.OK)
+        with m.Elif(f[PacketType.BANK_WRITE]):
+            with m.If(f["bw_bad_length"]):
+                respond(ErrorCode.BAD_LENGTH)
+            with m.Elif(f["bw_bad_address"]):
+                respond(ErrorCode.BAD_ADDRESS)
+            with m.Else():
+                m.d.sync += [st["off"].eq(2), st["got"].eq(0), st["waddr"].eq(word)]
+                m.next = "BANK_WRITE"
+        with m.Elif(f[PacketType.BANK_CRC]):
+            m.d.sync += [st["scan"].eq(0), st["commit"].eq(0)]
+            m.next = "SCAN"
+        with m.Elif(f[PacketType.BANK_COMMIT]):
+            with m.If(f["bad_kl"]):
+                respond(ErrorCode.BAD_VALUE)
+            with m.Else():
+                m.d.sync += [st["scan"].eq(0), st["commit"].eq(1)]
+                m.next = "SCAN"
+        with m.Elif(f[PacketType.START]):
+            m.d.sync += self.acquiring.eq(1)
+            respond(ErrorCode.OK)
+        with m.Elif(f[PacketType.STOP]):
+            m.d.sync += self.acquiring.eq(0)
+            respond(ErrorCode.OK)
+        with m.Else():  # STATUS, the last command
+            respond(ErrorCode.OK, status, STATUS.size)
+
+
+def _bank_crc():
+    """CRC-32 of the shadow, one s16 word per clock.
+
+    The CRC is reflected, so a 16-bit word taken least significant bit first is its two bytes
+    little-endian, the order ``BANK_CRC`` is defined over (``tests/test_hdl_link.py`` checks it
+    against ``BODY_CRC.compute`` of the bytes).
+    """
+    return BODY_CRC(16).create()

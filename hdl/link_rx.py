@@ -1,0 +1,214 @@
+"""The link's packet receiver: sync search, both CRCs and exact resynchronization (spec section 9).
+
+:class:`LinkReceiver` is the hardware form of ``firmware_host.protocol.PacketParser``, the
+receiver of ``model.device.Device``: it finds a candidate at every ``C5 3A``, checks the header
+CRC and the length, then the payload CRC, and after any rejection searches again from the byte
+after the candidate's first sync byte. To do so without losing a byte it keeps every received
+byte from the oldest one it may still need to search in a ring buffer, and parses from the ring
+at its own read pointer: a rejection moves that pointer back (a replay), it never moves the
+writer. A delivered packet's payload stays in the ring until the command executor has read it.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module, Signal
+from amaranth.lib import data, memory, stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.link import BODY_CRC, CRC_BYTES, HEADER_CRC, LINK_SYNC_BYTES, MAX_PAYLOAD, PACKET_HEADER
+
+__all__ = ["PACKET_INFO", "LinkReceiver", "check_buffer_bytes", "max_payload"]
+
+#: What the receiver tells the executor about a packet that passed both CRCs.
+PACKET_INFO = data.StructLayout({"type": 8, "seq": 8, "length": 16})
+
+# bytes of a candidate kept from its third byte (the replay point) to its last
+_AFTER_SYNC = PACKET_HEADER.size - len(LINK_SYNC_BYTES)
+
+
+def check_buffer_bytes(buffer_bytes: int) -> int:
+    """``buffer_bytes`` if it is a power of two, at least 64; ``ValueError`` naming it if not."""
+    if not isinstance(buffer_bytes, int) or buffer_bytes < 64 or buffer_bytes & (buffer_bytes - 1):
+        raise ValueError(f"buffer_bytes must be a power of two >= 64, not {buffer_bytes!r}")
+    return buffer_bytes
+
+
+def max_payload(buffer_bytes: int) -> int:
+    """Largest payload a receiver with a ring of ``buffer_bytes`` accepts.
+
+    The ring holds a candidate from its third byte (where a rejection restarts the search) to
+    its payload CRC: ``6 + length + 4`` bytes.
+    """
+    return min(MAX_PAYLOAD, buffer_bytes - _AFTER_SYNC - CRC_BYTES)
+
+
+class LinkReceiver(wiring.Component):
+    """Packets out of a byte stream, with the model's resynchronization rule, one byte per clock.
+
+    Parameters
+    ----------
+    buffer_bytes : int
+        Ring buffer size, a power of two, at least 64. A candidate whose ``length`` exceeds
+        :func:`max_payload` of it is rejected at the header (as
+        ``PacketParser(max_payload=...)``); 2048 (one ECP5 block RAM as 2048 x 9) holds every
+        valid command (``BANK_WRITE`` of 256 words is 526 bytes on the wire) with room to spare.
+
+    Attributes
+    ----------
+    i : In(stream.Signature(8))
+        Line bytes. ``ready`` is low only while the ring is full (a candidate of the largest
+        accepted length still waiting to be decided, or an executor holding a packet).
+    pkt : Out(stream.Signature(PACKET_INFO))
+        A packet that passed both CRCs. It stays valid, and its payload readable, until taken;
+        taking it means "executed", and the search goes on after the packet's CRC.
+    rd_offset : In(range(max_payload))
+        While ``pkt.valid``: a payload byte offset to read.
+    rd_data : Out(8)
+        The payload byte at the ``rd_offset`` of the previous clock.
+    bad : Out(32)
+        Rejected candidates (header CRC, length, payload CRC), modulo 2^32: the model's
+        ``parser.counters.bad``.
+
+    Notes
+    -----
+    Latency: ``pkt.valid`` is high 3 clocks after the clock on which the last CRC byte is taken
+    on ``i``, when the parser has caught up with the line (reading the byte, checking the CRC,
+    delivering). The parser reads one ring byte per clock, searching, in a header, a payload or
+    a replay alike, so a replay of ``n`` bytes costs ``n`` clocks; it spends one more clock
+    after a sync word, a header and a CRC to act on them, so that the ring's output (5.8 ns from
+    the clock on an ECP5) only ever drives flip-flops. A rejection costs no further clock. Known
+    failure mode: a line without flow control loses bytes while ``i.ready`` is low; that needs a
+    candidate whose header passes its CRC by chance (odds 2^-16 per false sync word) with a
+    length near the maximum, decided while the line keeps sending.
+    """
+
+    def __init__(self, buffer_bytes: int = 2048):
+        self.buffer_bytes = check_buffer_bytes(buffer_bytes)
+        self.max_payload = max_payload(buffer_bytes)
+        super().__init__({
+            "i": In(stream.Signature(8)),
+            "pkt": Out(stream.Signature(PACKET_INFO)),
+            "rd_offset": In(range(self.max_payload)),
+            "rd_data": Out(8),
+            "bad": Out(32),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        size = self.buffer_bytes
+        aw = (size - 1).bit_length()
+        ring = m.submodules.ring = memory.Memory(shape=8, depth=size, init=[])
+        wr = ring.write_port()
+        rd = ring.read_port(transparent_for=(wr,))
+        m.submodules.hcrc = hcrc = HEADER_CRC().create()
+        m.submodules.bcrc = bcrc = BODY_CRC().create()
+
+        # pointers one bit wider than the ring tell full from empty
+        wp = Signal(aw + 1)  # next byte written
+        rp = Signal(aw + 1)  # next byte parsed; rd.data is ring[rp] (rd.addr = next rp)
+        base = Signal(aw + 1)  # oldest byte still needed: rp, or a candidate's third byte
+        rp_next = Signal(aw + 1)
+        m.d.comb += [
+            self.i.ready.eq((wp - base)[:aw + 1] != size),
+            wr.addr.eq(wp[:aw]),
+            wr.data.eq(self.i.payload),
+            wr.en.eq(self.i.valid & self.i.ready),
+            rp_next.eq(rp),
+            rd.addr.eq(rp_next[:aw]),
+        ]
+        with m.If(wr.en):
+            m.d.sync += wp.eq(wp + 1)
+        m.d.sync += rp.eq(rp_next)
+
+        avail = Signal()
+        byte = rd.data
+        m.d.comb += avail.eq(rp != wp)
+        hdr = [Signal(8, name=f"hdr{n}") for n in range(_AFTER_SYNC)]  # type, seq, length, hcrc
+        length = Cat(hdr[2], hdr[3])
+        count = Signal(16)  # bytes of the header, payload or CRC field taken so far
+        rx_crc = Signal(8 * CRC_BYTES)
+        after_c5 = Signal()  # the previous byte searched was the first sync byte
+        found = Signal()  # the byte searched on the previous clock completed a sync word
+        sync0, sync1 = LINK_SYNC_BYTES
+        m.d.comb += [
+            self.pkt.payload.type.eq(hdr[0]),
+            self.pkt.payload.seq.eq(hdr[1]),
+            self.pkt.payload.length.eq(length),
+            self.rd_data.eq(rd.data),
+        ]
+
+        # the CRCs take the bytes one clock late, from registers: the block RAM's output then
+        # drives flip-flops only, not the CRC's XOR network (both checks come later anyway)
+        h_valid, h_start, b_valid, b_start = Signal(), Signal(), Signal(), Signal()
+        m.d.sync += [hcrc.data.eq(byte), bcrc.data.eq(byte),
+                     hcrc.valid.eq(h_valid), hcrc.start.eq(h_start),
+                     bcrc.valid.eq(b_valid), bcrc.start.eq(b_start)]
+
+        def reject():
+            m.d.sync += [self.bad.eq(self.bad + 1), after_c5.eq(0)]
+            m.d.comb += rp_next.eq(base)  # replay from the candidate's third byte
+            m.next = "SEARCH"
+
+        with m.FSM():
+            with m.State("SEARCH"):
+                # a sync word found is acted on a clock later (`found`, registered): the ring's
+                # slow output then drives flip-flops only, never the parser's next state
+                with m.If(found):
+                    m.d.sync += found.eq(0)
+                    m.next = "HEADER"
+                with m.Elif(avail):
+                    m.d.comb += rp_next.eq(rp + 1)
+                    m.d.sync += [base.eq(rp + 1), after_c5.eq(byte == sync0), count.eq(0),
+                                 found.eq(after_c5 & (byte == sync1))]
+            with m.State("HEADER"):
+                with m.If(avail):
+                    m.d.comb += [rp_next.eq(rp + 1),
+                                 h_start.eq(count == 0), h_valid.eq(count < 4),
+                                 # restarted on every header byte, run on the payload only:
+                                 # the empty payload's CRC when the length is 0
+                                 b_start.eq(1)]
+                    with m.Switch(count):
+                        for n in range(_AFTER_SYNC):
+                            with m.Case(n):
+                                m.d.sync += hdr[n].eq(byte)
+                    m.d.sync += count.eq(count + 1)
+                    with m.If(count == _AFTER_SYNC - 1):
+                        m.d.sync += count.eq(0)
+                        m.next = "HEADER_CHECK"
+            with m.State("HEADER_CHECK"):
+                # a clock of its own: the ring's output never reaches the ring's address
+                with m.If((Cat(hdr[4], hdr[5]) != hcrc.crc) | (length > self.max_payload)):
+                    reject()
+                with m.Elif(length == 0):
+                    m.next = "CRC"
+                with m.Else():
+                    m.next = "PAYLOAD"
+            with m.State("PAYLOAD"):
+                with m.If(avail):
+                    m.d.comb += [rp_next.eq(rp + 1), b_valid.eq(1)]
+                    m.d.sync += count.eq(count + 1)
+                    with m.If(count + 1 == length):
+                        m.d.sync += count.eq(0)
+                        m.next = "CRC"
+            with m.State("CRC"):
+                with m.If(avail):
+                    m.d.comb += rp_next.eq(rp + 1)
+                    m.d.sync += [count.eq(count + 1), rx_crc.eq(Cat(rx_crc[8:], byte))]
+                    with m.If(count == CRC_BYTES - 1):
+                        m.next = "CRC_CHECK"
+            with m.State("CRC_CHECK"):
+                with m.If(rx_crc == bcrc.crc):
+                    m.next = "DELIVER"
+                with m.Else():
+                    reject()
+            with m.State("DELIVER"):
+                m.d.comb += [
+                    self.pkt.valid.eq(1),
+                    rd.addr.eq((base + _AFTER_SYNC + self.rd_offset)[:aw]),
+                ]
+                with m.If(self.pkt.ready):
+                    # the ring frees the packet; rd.addr goes back to the parser's byte
+                    m.d.comb += rd.addr.eq(rp[:aw])
+                    m.d.sync += [base.eq(rp), after_c5.eq(0)]
+                    m.next = "SEARCH"
+        return m
