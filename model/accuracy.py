@@ -537,9 +537,11 @@ def _method_json(spec: MethodSpec, points, rows: list, n: int) -> dict:
 def targets(methods: list) -> dict:
     """Whether the issue's targets are met, from the ``methods`` list of the JSON.
 
-    The *best* method is the one meeting most of the four accuracy targets (ties: lowest
-    RMSE over 1-26 m); the on-chip path is ``adaptive_mf``; the best offline method is the
-    float, non-photon method of lowest RMSE over 1-26 m.
+    The *best* method is the waveform (non-photon) method meeting most of the four accuracy
+    targets (ties: lowest RMSE over 1-26 m): the targets are set on seed 000's waveform
+    lidar, and a photon counter that answers at a few shallow depths would otherwise win on
+    bias alone. The on-chip path is ``adaptive_mf``; the best offline method is the float,
+    non-photon method of lowest RMSE over 1-26 m.
     """
     def acc(m):
         s = m["summary"]
@@ -555,8 +557,9 @@ def targets(methods: list) -> dict:
         return math.inf if r is None else r
 
     out = []
-    if methods:
-        best = max(methods, key=lambda m: (sum(acc(m).values()), -rmse(m)))
+    waveform = [m for m in methods if not m["photon"]]
+    if waveform:
+        best = max(waveform, key=lambda m: (sum(acc(m).values()), -rmse(m)))
         s, a = best["summary"], acc(best)
         out += [
             {"id": "abs_bias", "text": "best method mean abs(bias) <= 1.6 cm (1-26 m)",
