@@ -143,21 +143,22 @@ class Emulator:
         self.stop()
 
 
-def spawn(*args: str, timeout_s: float = 60.0):
-    """Start ``albcap emulate ARGS`` as a subprocess; return ``(process, pty path)``.
+def spawn(*args: str, timeout_s: float = 60.0, command: str = "emulate"):
+    """Start ``albcap COMMAND ARGS`` (a device behind a pty) as a subprocess.
 
-    The caller ends it with ``process.send_signal(signal.SIGINT)``.
+    Returns ``(process, pty path)``: the device prints its path as its first line. ``command``
+    is ``emulate`` or ``cosim``. The caller ends it with ``process.send_signal(SIGINT)``.
     """
     exe = Path(sys.executable).with_name("albcap")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "firmware_host.cli"]
-    proc = subprocess.Popen([*cmd, "emulate", *args], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([*cmd, command, *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
     path = proc.stdout.readline().strip() if ready else ""
     if not path.startswith("/dev/"):
         proc.kill()
         _, err = proc.communicate()
-        raise RuntimeError(f"albcap emulate did not start: {err.strip() or path!r}")
+        raise RuntimeError(f"albcap {command} did not start: {err.strip()[-2000:] or path!r}")
     return proc, path
 
 
