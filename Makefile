@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 
-.PHONY: demo test lint bench synth clean-venv
+.PHONY: demo test lint bench synth results clean-venv
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,6 +25,12 @@ lint: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(VENV)/bin/albcap bench model --json
+
+# docs/results.md from scratch: the accuracy sweep, the stability suite, then charts and tables
+results: $(VENV)/.installed
+	$(VENV)/bin/albcap bench accuracy --no-progress
+	$(VENV)/bin/albcap bench regimes --no-progress
+	$(VENV)/bin/albcap chart --results docs/results.md
 
 synth: $(VENV)/.installed
 	$(VENV)/bin/albcap hdl synth
