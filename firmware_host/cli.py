@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "hdl.cli",
     "firmware_host.commands",
     "firmware_host.survey",
+    "firmware_host.cosim",
 )
 
 

@@ -6,13 +6,15 @@ feeds :class:`~hdl.peak_detect.PeakDetect` and, through a stream fork, the ``y``
 
 Feedback bound. The detector accepts ``y[s + 1]`` on some clock edge ``T`` and raises the surface
 message ``SURFACE_LATENCY`` clocks later (its decision is pipelined); the filter takes it at edge
-``T + SURFACE_LATENCY``, and it acts on samples accepted after that edge. Between the filter's
-input and the detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one per
-pipeline register; a stall holds them, it never adds any), so by then the filter has accepted
-samples up to ``s + 1 + LATENCY + SURFACE_LATENCY`` at the most, all of them before the surface
+``T + SURFACE_LATENCY`` and it acts on samples accepted ``SURFACE_APPLY`` edges after that one
+(the filter makes its template compares a clock ahead). Between the filter's input and the
+detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one per pipeline register;
+a stall holds them, it never adds any), so by then the filter has accepted samples up to
+``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of them before the surface
 was known. They must all still use template 0, so the join is exact for
-``bin_offset >= LATENCY + SURFACE_LATENCY + 2 = 12``; the register's floor of 16 leaves 4 samples
-of slack. Tested at ``bin_offset = 16`` with surfaces on plain, idle and back-pressured traffic.
+``bin_offset >= LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1 = 11 + 2 + 2 + 1 = 16``: the
+register's floor, with no slack. Tested at ``bin_offset = 16`` with surfaces on plain, idle and
+back-pressured traffic.
 """
 
 from __future__ import annotations
@@ -24,13 +26,20 @@ from amaranth.lib.wiring import In, Out
 from model.matched_filter import K_MAX, L_MAX
 
 from .layouts import config_signature
-from .matched_filter import COEF_WRITE, FILTER_IN, FILTER_OUT, LATENCY, MatchedFilter
+from .matched_filter import (
+    COEF_WRITE,
+    FILTER_IN,
+    FILTER_OUT,
+    LATENCY,
+    SURFACE_APPLY,
+    MatchedFilter,
+)
 from .peak_detect import PEAK_RESULT, SURFACE_LATENCY, PeakDetect
 
 __all__ = ["MIN_BIN_OFFSET", "FilterDetect"]
 
 #: Smallest ``bin_offset`` for which the fed-back surface always arrives in time.
-MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + 2
+MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1
 
 
 class FilterDetect(wiring.Component):
@@ -53,7 +62,7 @@ class FilterDetect(wiring.Component):
 
     Notes
     -----
-    Latency: ``y`` as the filter (``LATENCY`` = 7 clocks); the result ``RESULT_LATENCY`` = 14
+    Latency: ``y`` as the filter (``LATENCY`` = 11 clocks); the result ``RESULT_LATENCY`` = 14
     clocks after the frame's last ``y``. The fork passes a beat when both ``y`` and the detector
     take it, so ``y`` backpressure stalls the detector and the detector's frame-end wait stalls
     ``y``.

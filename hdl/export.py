@@ -58,6 +58,12 @@ def _filter_detect():
     return FilterDetect()
 
 
+def _load(module: str, cls: str):
+    import importlib
+
+    return getattr(importlib.import_module(f"{__package__}.{module}"), cls)()
+
+
 #: Exported components by module name, each with its production parameters.
 COMPONENTS = {
     "albcap_stitch": _stitch,
@@ -65,4 +71,7 @@ COMPONENTS = {
     "albcap_matched_filter": _matched_filter,
     "albcap_peak_detect": _peak_detect,
     "albcap_filter_detect": _filter_detect,
+    "albcap_link": lambda: _load("device", "Link"),
+    "albcap_frame_packetizer": lambda: _load("frame", "FramePacketizer"),
+    "albcap_top": lambda: _load("top", "Top"),  # pipeline and link; the pipeline is inside
 }

@@ -33,7 +33,7 @@ __all__ = ["DROP_BITS", "LATENCY", "Gate"]
 
 #: Clocks from an input sample to the same sample on ``o`` (FIFO empty, ``o.ready`` high); the
 #: header of a frame becomes valid this many clocks after its last sample entered.
-LATENCY = 2
+LATENCY = 3
 #: Width of the saturating dropped-frame counter.
 DROP_BITS = 16
 
@@ -94,7 +94,7 @@ class Gate(wiring.Component):
 
     Notes
     -----
-    Latency: :data:`LATENCY` = 2 clocks from an input sample to it on ``o`` when the FIFO is
+    Latency: :data:`LATENCY` = 3 clocks from an input sample to it on ``o`` when the FIFO is
     empty and ``o.ready`` high; one sample per clock sustained.
 
     ``gate_len``, ``frame_type`` and ``bank_id`` are latched when a trigger is accepted, so a
@@ -133,41 +133,62 @@ class Gate(wiring.Component):
         m.d.comb += self.i.ready.eq(1)
 
         # Frame store. Each FIFO gets one entry more than its capacity so that the inner memory
-        # alone holds `depth` entries: the admission test below (level + len <= depth) then
-        # guarantees w_rdy on every write, whatever the output register is doing.
+        # alone holds `depth` entries: the admission test below (length <= free, free counting
+        # depth - level) then guarantees w_rdy on every write, whatever the output register is
+        # doing.
         data = m.submodules.data = SyncFIFOBuffered(width=GATE_OUT.size, depth=self.depth + 1)
         hdrs = m.submodules.hdrs = SyncFIFOBuffered(width=_STORED.size, depth=self.header_depth + 1)
 
         # Time and event counters (section 3): `fine` ticks every `fine_div` samples after the
-        # last line sync; `fine_sat` remembers that it would have passed its maximum.
+        # last line sync; `fine_sat` remembers that it would have passed its maximum. `pre1`
+        # (= pre + 1) and `fine1` (= fine + 1, or the maximum) are kept as registers beside
+        # `pre` and `fine` so that the tick compare and the fine step are one carry chain each,
+        # not an increment feeding a compare feeding an increment.
         fine = Signal(FINE_BITS, init=self.fine_start)
+        fine1 = Signal(FINE_BITS, init=min(self.fine_start + 1, _FINE_MAX))
+        fine_top = Signal(init=self.fine_start == _FINE_MAX)  # fine == _FINE_MAX
         fine_sat = Signal()
-        pre = Signal(16)
+        pre1 = Signal(17, init=1)
         coarse = Signal(COARSE_BITS, init=self.coarse_start)
+        coarse1 = Signal(COARSE_BITS, init=(self.coarse_start + 1) % (1 << COARSE_BITS))
         shot = Signal(SHOT_BITS, init=self.shot_start)
         sync = p.line_sync
-        fine_now = Mux(sync, 0, fine)
         sat_now = ~sync & fine_sat
-        pre_now = Mux(sync, 0, pre)
-        coarse_now = Signal(COARSE_BITS)
-        m.d.comb += coarse_now.eq(coarse + sync)  # modulo 2^24 by the signal's width
-        tick = pre_now + 1 >= cfg.fine_div
+        coarse_now = Mux(sync, coarse1, coarse)  # modulo 2^24 by the signal's width
+        tick = Mux(sync, 1, pre1) >= cfg.fine_div
         with m.If(step):
-            m.d.sync += [coarse.eq(coarse_now), pre.eq(Mux(tick, 0, pre_now + 1))]
-            with m.If(tick & (fine_now == _FINE_MAX)):
-                m.d.sync += [fine.eq(_FINE_MAX), fine_sat.eq(1)]
-            with m.Else():
-                m.d.sync += [fine.eq(fine_now + tick), fine_sat.eq(sat_now)]
+            with m.If(sync):
+                m.d.sync += [coarse.eq(coarse1), coarse1.eq(coarse1 + 1)]
+            m.d.sync += pre1.eq(Mux(tick, 1, Mux(sync, 2, pre1 + 1)))
+            with m.If(sync):
+                # fine restarts at 0, or 1 on a tick
+                m.d.sync += [fine.eq(tick), fine1.eq(tick + 1), fine_top.eq(0),
+                             fine_sat.eq(0)]
+            with m.Elif(tick):
+                with m.If(fine_top):
+                    m.d.sync += fine_sat.eq(1)
+                with m.Else():
+                    m.d.sync += [fine.eq(fine1), fine_top.eq(fine1 == _FINE_MAX),
+                                 fine1.eq(Mux(fine1 == _FINE_MAX, fine1, fine1 + 1))]
+        fine_now = Mux(sync, 0, fine)
 
         # Gate state: busy from the accepted trigger to the frame's last sample (inclusive).
+        # Beside the counters `wait` and `left`, registered flags say what their compares
+        # would (wait == 0, left == 1, no sample kept yet), so that the decisions below are a
+        # few LUTs deep, not counter compares.
         busy = Signal()
         wait = Signal.like(cfg.gate_delay)  # samples still to skip before the first kept one
+        wait0 = Signal(init=1)  # wait == 0 (it is, from the first kept sample on)
         left = Signal.like(cfg.gate_len)  # samples still to keep
+        left1 = Signal()  # left == 1
+        fresh = Signal()  # no sample of the open frame kept yet (left == the frame's length)
         keep = Signal()  # the open frame was admitted to the FIFOs
         start = p.trigger & ~busy
         length = Mux(cfg.gate_len == 0, 1, cfg.gate_len)
         cur_wait = Mux(busy, wait, cfg.gate_delay)
+        cur_wait0 = Mux(busy, wait0, cfg.gate_delay == 0)
         cur_left = Mux(busy, left, length)
+        cur_left1 = Mux(busy, left1, length == 1)
 
         # The header being built: latched at the accepted trigger; on that clock itself the
         # live values are used (a 1-sample gate with no delay closes on its trigger clock).
@@ -188,34 +209,64 @@ class Gate(wiring.Component):
                 h_now.bank_id.eq(self.bank_id),
             ]
 
-        kept = (busy | start) & (cur_wait == 0)
-        first = kept & (cur_left == h_now.length)
-        last = kept & (cur_left == 1)
-        admit = ((data.level + h_now.length <= self.depth)
-                 & (hdrs.level < self.header_depth))
+        # Room in the FIFOs, counted here rather than read from their `level` (writes when they
+        # are made, reads when they happen): `free` is depth - level, and the admission test
+        # one compare of registers.
+        w_en, hw_en = Signal(), Signal()  # the registered FIFO writes (below)
+        # A write decided at one clock is taken off `free` at the next (with the registered
+        # write itself), so no compare sits in the loop that updates `free`; the admission test
+        # sees the write still pending through `free_m1` (= free - 1).
+        free = Signal(range(self.depth + 1), init=self.depth)
+        free_m1 = Signal(range(-1, self.depth + 1), init=self.depth - 1)
+        hfree = Signal(range(self.header_depth + 1), init=self.header_depth)
+        kept = (busy | start) & cur_wait0
+        first = kept & (~busy | fresh)
+        last = kept & cur_left1
+        # the four compares straight from registers, the pending write choosing among them
+        fits_h = Mux(w_en, h.length <= free_m1, h.length <= free)
+        fits_live = Mux(w_en, length <= free_m1, length <= free)
+        hroom = (hfree != 0) & ~(hw_en & (hfree == 1))
+        admit = Mux(busy, fits_h, fits_live) & hroom
         keep_now = Mux(first, admit, keep)
         with m.If(step):
             with m.If(busy | start):
                 m.d.sync += h.eq(h_now)
-                with m.If(cur_wait != 0):
-                    m.d.sync += [wait.eq(cur_wait - 1), left.eq(cur_left), busy.eq(1)]
+                with m.If(~cur_wait0):
+                    m.d.sync += [wait.eq(cur_wait - 1), wait0.eq(cur_wait == 1),
+                                 left.eq(cur_left), left1.eq(cur_left1), busy.eq(1),
+                                 fresh.eq(1)]
                 with m.Else():
-                    m.d.sync += [left.eq(cur_left - 1), busy.eq(~last), keep.eq(keep_now)]
+                    m.d.sync += [left.eq(cur_left - 1), left1.eq(cur_left == 2),
+                                 busy.eq(~last), keep.eq(keep_now), fresh.eq(0), wait0.eq(1)]
             with m.If(start):
                 m.d.sync += shot.eq(shot + 1)
             with m.If(first & ~admit & (self.dropped != (1 << DROP_BITS) - 1)):
                 m.d.sync += self.dropped.eq(self.dropped + 1)
 
+        # The FIFO writes, registered (the decisions above are the longest logic of the gate;
+        # the memories' write enables and the FIFOs' own pointer logic come after them).
         beat = Signal(GATE_OUT)
-        m.d.comb += [
+        hw_data = Signal(_STORED)
+        m.d.sync += [
             beat.codes.eq(p.codes),
             beat.x.eq(p.x),
             beat.first.eq(first),
             beat.last.eq(last),
+            w_en.eq(step & kept & keep_now),
+            hw_data.eq(h_now),
+            hw_en.eq(step & last & keep_now),
+        ]
+        rd = data.r_en & data.r_rdy
+        hrd = hdrs.r_en & hdrs.r_rdy
+        free_nx = Signal.like(free)
+        m.d.comb += free_nx.eq(free - w_en + rd)
+        m.d.sync += [free.eq(free_nx), free_m1.eq(free_nx - 1),
+                     hfree.eq(hfree - hw_en + hrd)]
+        m.d.comb += [
             data.w_data.eq(beat),
-            data.w_en.eq(step & kept & keep_now),
-            hdrs.w_data.eq(h_now),
-            hdrs.w_en.eq(step & last & keep_now),
+            data.w_en.eq(w_en),
+            hdrs.w_data.eq(hw_data),
+            hdrs.w_en.eq(hw_en),
             # Output side: plain FIFO reads.
             self.o.payload.eq(data.r_data),
             self.o.valid.eq(data.r_rdy),

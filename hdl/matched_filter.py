@@ -13,11 +13,11 @@ contribute nothing whatever the memory holds there.
 
 from __future__ import annotations
 
-from amaranth.hdl import Const, Module, Mux, Signal, signed, unsigned
+from amaranth.hdl import ClockSignal, Elaboratable, Instance, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from model.matched_filter import ACC_WIDTH, COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
+from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
 from .layouts import STITCHED, config_signature
@@ -29,8 +29,10 @@ __all__ = [
     "LATENCY",
     "N_WIDTH",
     "SURFACE",
+    "SURFACE_APPLY",
     "TAG_WIDTH",
     "MatchedFilter",
+    "RegisteredMultiplier",
     "frame_tags",
 ]
 
@@ -42,7 +44,11 @@ N_WIDTH = by_name("gate_len").width
 #: below half the tag range, so "older" and "newer" are told apart modulo ``2^TAG_WIDTH``.
 TAG_WIDTH = 8
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
-LATENCY = 7
+LATENCY = 11
+
+#: Clock edges from the one that takes a surface message to the first one whose accepted sample
+#: uses it (the template compares are made a clock ahead; see :class:`MatchedFilter`).
+SURFACE_APPLY = 2
 
 _K_SHAPE = unsigned((K_MAX - 1).bit_length())
 _J_BITS = (L_MAX - 1).bit_length()
@@ -74,6 +80,65 @@ def frame_tags(n_frames: int) -> list[int]:
     return [f % (1 << TAG_WIDTH) for f in range(n_frames)]
 
 
+class RegisteredMultiplier(Elaboratable):
+    """``p = a * b`` (signed, up to 18 x 18 bits) between two registers, two clocks of latency.
+
+    The operands are registered on a clock with ``ce`` high and their product on the next such
+    clock: ``p`` is the product of the operands ``a``, ``b`` given two ``ce`` edges earlier.
+    Registers are not reset (as the DSP block's own, tied to no reset).
+
+    Why a component: an ECP5 ``MULT18X18D`` reaches 200 MHz only with its own input and output
+    registers (a registered-operand product straight through the block is 3.9 ns plus routing,
+    143 MHz here), and Yosys's ``synth_ecp5`` maps a multiply to the block without them. So when
+    elaborated for an ECP5 platform (``platform.family == "ecp5"``, as :mod:`hdl.synth` passes)
+    this instantiates the primitive with ``REG_INPUTA/B`` and ``REG_OUTPUT`` on ``CLK0``/``CE0``;
+    otherwise (simulation, Verilator, other vendors, whose tools do pack such registers) it is
+    the same two registers in plain logic, cycle for cycle.
+    """
+
+    def __init__(self, a_shape, b_shape):
+        for name, shape in (("a", a_shape), ("b", b_shape)):
+            if not shape.signed or shape.width > 18:
+                raise ValueError(f"{name} must be signed and at most 18 bits, not {shape!r}")
+        self.a = Signal(a_shape)
+        self.b = Signal(b_shape)
+        self.ce = Signal()
+        self.p = Signal(signed(a_shape.width + b_shape.width))
+
+    def elaborate(self, platform):
+        m = Module()
+        if getattr(platform, "family", None) == "ecp5":
+            full = Signal(36)
+            ports = {"i_CLK0": ClockSignal(), "i_CE0": self.ce, "i_SIGNEDA": 1, "i_SIGNEDB": 1,
+                     "i_SOURCEA": 0, "i_SOURCEB": 0}
+            for i in range(1, 4):
+                ports.update({f"i_CLK{i}": 0, f"i_CE{i}": 1})
+            for i in range(4):
+                ports[f"i_RST{i}"] = 0
+            for i in range(18):  # sign-extended to the block's 18 bits
+                ports.update({f"i_A{i}": self.a[min(i, len(self.a) - 1)],
+                              f"i_B{i}": self.b[min(i, len(self.b) - 1)], f"i_C{i}": 0})
+            ports.update({f"o_P{i}": full[i] for i in range(36)})
+            regs = {}
+            for reg, clk in (("INPUTA", "CLK0"), ("INPUTB", "CLK0"), ("INPUTC", "NONE"),
+                             ("PIPELINE", "NONE"), ("OUTPUT", "CLK0")):
+                regs.update({f"p_REG_{reg}_CLK": clk, f"p_REG_{reg}_CE": "CE0",
+                             f"p_REG_{reg}_RST": "RST0"})
+            m.submodules.dsp = Instance(
+                "MULT18X18D", p_GSR="DISABLED", p_RESETMODE="SYNC", p_SOURCEB_MODE="B_SHIFT",
+                p_MULT_BYPASS="DISABLED", p_CAS_MATCH_REG="FALSE",
+                **{f"p_CLK{i}_DIV": "ENABLED" for i in range(4)}, **regs, **ports)
+            m.d.comb += self.p.eq(full[:len(self.p)])
+        else:
+            a = Signal.like(self.a, reset_less=True)
+            b = Signal.like(self.b, reset_less=True)
+            p = Signal.like(self.p, reset_less=True)
+            with m.If(self.ce):
+                m.d.sync += [a.eq(self.a), b.eq(self.b), p.eq(a * b)]
+            m.d.comb += self.p.eq(p)
+        return m
+
+
 class MatchedFilter(wiring.Component):
     """Depth-adaptive correlation of one frame after another, one sample per clock.
 
@@ -96,8 +161,8 @@ class MatchedFilter(wiring.Component):
         ahead of the samples.
     coef : In(stream.Signature(COEF_WRITE))
         Coefficient writes ``h[k][j]`` at ``addr = k * L_MAX + j``. A write takes priority over
-        samples: ``i.ready`` is low on its clock. Write the bank between frames (samples inside
-        the pipeline have read their coefficients already).
+        samples: ``i.ready`` is low on its clock. Write the bank between frames (a sample reads
+        its coefficients one clock after it is accepted; see Notes).
     cfg : In(config_signature("filter"))
         ``out_shift``, ``bin_offset``, ``bin_len``.
     templates : In(unsigned(5))
@@ -107,22 +172,32 @@ class MatchedFilter(wiring.Component):
 
     Notes
     -----
-    Latency :data:`LATENCY` = 7 clocks, all registered: (1) delay line and coefficients (the
-    memory's read register), i.e. the multiplier inputs; (2) the ``L_MAX`` products; (3, 4, 5)
-    the adder tree, two levels per stage (64 to 16 to 4 to 1); (6) rounding shift; (7)
-    saturation, the output register. One sample per clock sustained while ``o.ready`` is high.
-    Backpressure stalls the whole pipeline: ``i.ready = (o.ready | ~o.valid) & ~coef.valid``.
+    Latency :data:`LATENCY` = 11 clocks, all registered: (1) delay line and template index;
+    (2) the multiplier inputs (sample, and the coefficient read from LUT RAM with that index);
+    (3) the ``L_MAX`` products (2 and 3 are a :class:`RegisteredMultiplier`, the ECP5 DSP
+    block's own registers); (4 to 9) the adder tree, one two-input level per stage (64 to 1);
+    (10) the shift ``(2 acc) >> out_shift`` and the saturation compares; (11) round half up
+    and saturate, the pipeline's last register. One sample per clock sustained while
+    ``o.ready`` is high. The pipeline never stalls: it ends in an output buffer of
+    ``LATENCY + 1`` entries (bypassed when empty), and ``i.ready`` (registered, no path from
+    ``o.ready``) is low while ``LATENCY + 1`` accepted samples are not yet taken at ``o``, so
+    at most that many sit between input and consumer, as in a stalled pipeline of ``LATENCY``
+    registers. ``i.ready`` is also low on a clock with a coefficient write.
 
     Template selection counts samples, with no divider: when the frame reaches sample
     ``s + bin_offset`` it switches to template 1 (``min(1, K - 1)``), then one template further
-    every ``bin_len`` samples up to ``K - 1``. The surface must therefore arrive before the
-    filter accepts sample ``s + bin_offset``; :class:`~hdl.detect.FilterDetect`
-    documents the bound.
+    every ``bin_len`` samples up to ``K - 1``. The compares are made a clock ahead, so a surface
+    taken at one clock edge acts on samples accepted :data:`SURFACE_APPLY` = 2 edges later; it
+    must therefore be taken two edges before the filter accepts sample ``s + bin_offset``;
+    :class:`~hdl.detect.FilterDetect` documents the bound.
 
     Known failure modes: a surface that arrives too late (its switch sample already accepted)
     leaves template 0 for the rest of the frame. Register changes act on samples accepted from
-    the next clock on (``out_shift`` from the shift stage on). Frames longer than
-    ``2^N_WIDTH - 1`` samples wrap the sample counter.
+    the next clock on (``bin_len`` from the one after, as its compare is made ahead;
+    ``out_shift`` from the shift stage on, its saturation bounds a clock before). Coefficients
+    are read one clock after a sample is accepted: write the bank between frames, with the
+    pipeline's first stage empty. Frames longer than ``2^N_WIDTH - 1`` samples wrap the sample
+    counter.
     """
 
     def __init__(self):
@@ -139,23 +214,49 @@ class MatchedFilter(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         cfg, d = self.cfg, self.i.payload
-        advance = Signal()
-        accept = Signal()
+        # The pipeline runs free (no clock enable: a stall signal fanned out to every register
+        # was the longest path) and ends in a small output buffer with a bypass. `inflight`
+        # counts samples accepted and not yet taken at `o`; admitting at most CAPACITY =
+        # LATENCY + 1 of them keeps one sample per clock when `o` is ready, never overflows the
+        # buffer, and holds no more samples between the input and the consumer than a stalled
+        # pipeline of LATENCY registers did (the surface feedback bound counts on that).
+        capacity = LATENCY + 1
+        accept, take = Signal(), Signal()
+        inflight = Signal(range(capacity + 1))
+        # `room` (inflight < capacity) is kept twice, once inverted (`full`) so that synthesis
+        # cannot merge the two: `full` drives i.ready and the frame state, `room` only the
+        # delay line's 1 024 enables, whose long net then stays off the state logic's paths.
+        room, full = Signal(init=1), Signal()
+        accept_dl = Signal()  # = accept, for the delay line
         m.d.comb += [
-            advance.eq(self.o.ready | ~self.o.valid),
-            self.i.ready.eq(advance & ~self.coef.valid),
+            self.i.ready.eq(~full & ~self.coef.valid),
             accept.eq(self.i.valid & self.i.ready),
+            accept_dl.eq(self.i.valid & room & ~self.coef.valid),
+            take.eq(self.o.valid & self.o.ready),
             self.coef.ready.eq(1),
         ]
+        inflight_nx = Signal.like(inflight)
+        m.d.comb += inflight_nx.eq(inflight + accept - take)
+        m.d.sync += [inflight.eq(inflight_nx), room.eq(inflight_nx < capacity),
+                     full.eq(inflight_nx >= capacity)]
 
         # ---- frame state: sample counter, tag, surface, template ----
+        # The template of an accepted sample must be a few LUTs from registers (it fans out to
+        # every coefficient memory), so the compares it needs are made one clock ahead, for
+        # "the next sample, if it does not start a frame": `match` (it is the switch sample
+        # s + bin_offset) and `bin_end` (its bin is full). For that, `n1` and `cnt1` hold
+        # n + 1 and cnt + 1, and a surface taken at one edge (`s_pend`) enters the compare
+        # from the next: it acts on samples accepted SURFACE_APPLY = 2 edges on.
         n = Signal(N_WIDTH)  # index of the next sample of the frame
+        n1 = Signal(N_WIDTH, init=1)  # n + 1 (modulo 2^N_WIDTH, as n)
         tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # so the first frame is tag 0
-        s_known = Signal()
+        s_pend = Signal()  # the frame's surface was taken (start holds s + bin_offset)
         start = Signal(N_WIDTH + 1 + by_name("bin_offset").width)  # s + bin_offset
         active = Signal()  # k(n) >= 1 territory reached (n >= start)
         k = Signal(_K_SHAPE)  # template of the last accepted sample
         cnt = Signal(by_name("bin_len").width + 1)  # samples in the current bin so far
+        cnt1 = Signal.like(cnt)  # cnt + 1
+        match, bin_end = Signal(), Signal()
 
         # Surface messages: take the current frame's, drop older ones, hold newer ones.
         diff = Signal(TAG_WIDTH)
@@ -163,96 +264,151 @@ class MatchedFilter(wiring.Component):
         newer = (diff != 0) & ~diff[-1]
         m.d.comb += self.surface.ready.eq(~newer)
         with m.If(self.surface.valid & (diff == 0) & ~(accept & d.first)):
-            m.d.sync += [s_known.eq(1),
+            m.d.sync += [s_pend.eq(1),
                          start.eq(self.surface.payload.n + cfg.bin_offset)]
 
-        n_this = Mux(d.first, 0, n)
         k_max = self.templates - 1
         k_sel = Signal(_K_SHAPE)
         with m.If(d.first):
             m.d.comb += k_sel.eq(0)
-        with m.Elif(~active & s_known & (n_this == start)):
+        with m.Elif(match):
             m.d.comb += k_sel.eq(Mux(k_max >= 1, 1, 0))
-        with m.Elif(active & (cnt == cfg.bin_len)):
+        with m.Elif(active & bin_end):
             m.d.comb += k_sel.eq(Mux(k >= k_max, k, k + 1))
         with m.Else():
             m.d.comb += k_sel.eq(k)
-        with m.If(accept):
-            m.d.sync += [n.eq(n_this + 1), k.eq(k_sel)]
-            with m.If(d.first):
-                m.d.sync += [tag.eq(tag + 1), s_known.eq(0), active.eq(0)]
-            with m.Elif(~active & s_known & (n_this == start)):
-                m.d.sync += [active.eq(1), cnt.eq(1)]
-            with m.Elif(active):
-                m.d.sync += cnt.eq(Mux(cnt == cfg.bin_len, 1, cnt + 1))
 
-        # ---- stage 1: delay line and coefficients (the multiplier inputs) ----
+        # the next clock's state, for the compares made ahead
+        n_nx, cnt_nx_is1, cnt_nx_inc = Signal.like(n), Signal(), Signal()
+        s_known_nx, active_nx = Signal(), Signal()
+        m.d.comb += [n_nx.eq(n), s_known_nx.eq(s_pend), active_nx.eq(active)]
+        with m.If(accept):
+            m.d.comb += n_nx.eq(Mux(d.first, 1, n1))
+            m.d.sync += [n.eq(n_nx), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel)]
+            with m.If(d.first):
+                m.d.comb += [s_known_nx.eq(0), active_nx.eq(0)]
+                m.d.sync += [tag.eq(tag + 1), s_pend.eq(0)]
+            with m.Elif(match):
+                m.d.comb += [active_nx.eq(1), cnt_nx_is1.eq(1)]
+            with m.Elif(active):
+                m.d.comb += [cnt_nx_is1.eq(bin_end), cnt_nx_inc.eq(~bin_end)]
+        with m.If(cnt_nx_is1):
+            m.d.sync += [cnt.eq(1), cnt1.eq(2)]
+        with m.Elif(cnt_nx_inc):
+            m.d.sync += [cnt.eq(cnt1), cnt1.eq(cnt1 + 1)]
+        n_eq = Mux(accept, Mux(d.first, start == 1, n1 == start), n == start)
+        m.d.sync += [
+            active.eq(active_nx),
+            match.eq(s_known_nx & ~active_nx & n_eq),
+            bin_end.eq(Mux(cnt_nx_is1, cfg.bin_len == 1,
+                           Mux(cnt_nx_inc, cnt1 == cfg.bin_len, cnt == cfg.bin_len))),
+        ]
+
+        # ---- stage 1: delay line and template (registered: the template decision is the
+        # longest path before the memories, and k fans out to all L_MAX of them) ----
         L = self.taps
         r = [Signal(STITCHED, name=f"r{j}") for j in range(L_MAX)]
-        with m.If(accept):
+        with m.If(accept_dl):
             for j in range(L_MAX):
                 older = r[j + 1] if j + 1 < L_MAX else 0
                 moved = Mux(d.first, 0, Mux(j < L - 1, older, 0))
                 m.d.sync += r[j].eq(Mux(L - 1 == j, d.x, moved))
-        coefs = []
-        for j in range(L_MAX):
-            mem = memory.Memory(shape=signed(COEF_WIDTH), depth=K_MAX, init=[])
-            m.submodules[f"h{j}"] = mem
-            wp = mem.write_port()
-            rp = mem.read_port(domain="sync")
-            m.d.comb += [
-                wp.addr.eq(self.coef.payload.addr[_J_BITS:]),
-                wp.data.eq(self.coef.payload.data),
-                wp.en.eq(self.coef.valid & (self.coef.payload.addr[:_J_BITS] == j)),
-                rp.addr.eq(k_sel),
-                rp.en.eq(advance),
-            ]
-            coefs.append(rp.data)
         # side band of each stage: valid, k, first, last
         side = data.StructLayout({"valid": 1, "k": _K_SHAPE, "first": 1, "last": 1})
         sb = [Signal(side, name=f"sb{i}") for i in range(1, LATENCY + 1)]
 
-        # ---- stage 2: products ----
-        prods = [Signal(signed(2 * COEF_WIDTH), name=f"p{j}") for j in range(L_MAX)]
-        # ---- stages 3..5: adder tree, two levels per stage ----
+        # ---- stages 2, 3: the multipliers' input and output registers. Tap j's coefficient
+        # memory (K_MAX words, small enough for LUT RAM) is read asynchronously with the
+        # stage-1 template straight into the multiplier's input register. The template
+        # register is replicated, one copy per group of taps, so that each memory can sit by its
+        # DSP block rather than by one register driving all 64 (a 5 ns route otherwise). Copy g
+        # holds k ^ g and group g's memory stores h[k][j] at address k ^ g: the copies differ,
+        # so synthesis cannot merge them back into one ----
+        groups = min(K_MAX, L_MAX)
+        k_copy = [Signal(_K_SHAPE, name=f"k_copy{g}") for g in range(groups)]
+        m.d.sync += [k_copy[g].eq(k_sel ^ g) for g in range(groups)]
+        prods = []
+        for j in range(L_MAX):
+            g = j * groups // L_MAX
+            mem = memory.Memory(shape=signed(COEF_WIDTH), depth=K_MAX, init=[])
+            m.submodules[f"h{j}"] = mem
+            wp = mem.write_port()
+            rp = mem.read_port(domain="comb")
+            mul = m.submodules[f"mul{j}"] = RegisteredMultiplier(STITCHED, signed(COEF_WIDTH))
+            m.d.comb += [
+                wp.addr.eq(self.coef.payload.addr[_J_BITS:] ^ g),
+                wp.data.eq(self.coef.payload.data),
+                wp.en.eq(self.coef.valid & (self.coef.payload.addr[:_J_BITS] == j)),
+                rp.addr.eq(k_copy[g]),
+                mul.a.eq(r[j]), mul.b.eq(rp.data), mul.ce.eq(1),
+            ]
+            prods.append(mul.p)
+
+        # ---- stages 4..9: the adder tree, one level of two-input adds per stage (a 38-bit
+        # carry chain is most of a 5 ns clock) ----
         level = prods
         tree_stages = []
         while len(level) > 1:
-            nxt = []
-            for i in range(0, len(level), 4):
-                group = level[i:i + 4]
-                acc = Signal(signed(ACC_WIDTH), name=f"t{len(tree_stages)}_{i // 4}")
-                total = group[0]
-                for g in group[1:]:
-                    total = total + g
-                nxt.append((acc, total))
+            nxt = [(Signal(signed(len(level[i]) + 1), name=f"t{len(tree_stages)}_{i // 2}"),
+                    level[i] + level[i + 1]) for i in range(0, len(level), 2)]
             tree_stages.append(nxt)
             level = [a for a, _ in nxt]
-        assert len(tree_stages) == 3, "the latency assumes L_MAX = 64"
+        assert len(tree_stages) == LATENCY - 5, "the latency assumes L_MAX = 64"
         acc = level[0]
-        # ---- stage 6: round half up; stage 7: saturate ----
-        half = (Const(1, 32) << cfg.out_shift) >> 1
-        shifted = Signal(signed(ACC_WIDTH + 1))
+        # ---- stage 10: shift and saturation compares, stage 11: round half up and saturate.
+        # round_shift(acc, s) = (acc + 2^(s-1)) >> s = ((acc >> (s-1)) + 1) >> 1 for s >= 1, and
+        # acc = (2 acc + 1) >> 1 for s = 0: so stage 10 shifts t = (2 acc) >> s, with no add, and
+        # stage 11 adds 1 to the low bits of t only. The saturation is decided on acc in stage
+        # 10, beside the shift, against bounds made from out_shift a clock earlier: y > hi when
+        # t >= 2 hi + 1, i.e. acc >= (2 hi + 1) 2^(s-1) (acc >= hi + 1 for s = 0); y < lo when
+        # t <= 2 lo - 2, i.e. acc < (2 lo - 1) 2^(s-1) (acc < lo for s = 0). The bounds are
+        # clamped just outside acc's range, which keeps the compares 40 bits wide ----
         lo, hi = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
+        big = 1 << (len(acc) + 1)
+        sh = cfg.out_shift
+        bound = signed(len(acc) + 3)
+        over_at, under_at = Signal(bound), Signal(bound)
+        with m.Switch(sh):
+            for v in range(1 << len(sh)):
+                o_at = hi + 1 if v == 0 else (2 * hi + 1) << (v - 1)
+                u_at = lo if v == 0 else (2 * lo - 1) << (v - 1)
+                with m.Case(v):
+                    m.d.sync += [over_at.eq(min(o_at, big)), under_at.eq(max(u_at, -big))]
+        t = Signal(signed(len(acc) + 1))
+        over, under = Signal(), Signal()
+        t_low = t[:OUT_WIDTH + 1] + 1
 
-        with m.If(advance):
-            m.d.sync += [
-                sb[0].valid.eq(accept), sb[0].k.eq(k_sel),
-                sb[0].first.eq(d.first), sb[0].last.eq(d.last),
-            ]
-            m.d.sync += [sb[i].eq(sb[i - 1]) for i in range(1, LATENCY)]
-            m.d.sync += [prods[j].eq(r[j] * coefs[j]) for j in range(L_MAX)]
-            for stage in tree_stages:
-                m.d.sync += [a.eq(t) for a, t in stage]
-            m.d.sync += [
-                shifted.eq((acc + half) >> cfg.out_shift),
-                self.o.payload.y.eq(Mux(shifted < lo, lo, Mux(shifted > hi, hi, shifted))),
-            ]
-        last_sb = sb[LATENCY - 1]
-        m.d.comb += [
-            self.o.valid.eq(last_sb.valid),
-            self.o.payload.k.eq(last_sb.k),
-            self.o.payload.first.eq(last_sb.first),
-            self.o.payload.last.eq(last_sb.last),
+        m.d.sync += [
+            sb[0].valid.eq(accept), sb[0].k.eq(k_sel),
+            sb[0].first.eq(d.first), sb[0].last.eq(d.last),
         ]
+        m.d.sync += [sb[i].eq(sb[i - 1]) for i in range(1, LATENCY)]
+        for stage in tree_stages:
+            m.d.sync += [a.eq(v) for a, v in stage]
+        pipe = Signal(FILTER_OUT)  # the pipeline's last stage
+        last_sb = sb[LATENCY - 1]
+        m.d.sync += [
+            t.eq((acc << 1) >> sh), over.eq(acc >= over_at), under.eq(acc < under_at),
+            pipe.y.eq(Mux(over, hi, Mux(under, lo, t_low[1:]))),
+        ]
+        m.d.comb += [pipe.k.eq(last_sb.k), pipe.first.eq(last_sb.first),
+                     pipe.last.eq(last_sb.last)]
+
+        # ---- output buffer: registers, the head at entry 0; an empty buffer passes the
+        # pipeline's sample straight through ----
+        buf = [Signal(FILTER_OUT, name=f"buf{i}") for i in range(capacity)]
+        held = Signal(range(capacity + 1))  # entries in use
+        any_held = Signal()  # held != 0
+        m.d.comb += [
+            self.o.valid.eq(any_held | last_sb.valid),
+            self.o.payload.eq(Mux(any_held, buf[0], pipe)),
+        ]
+        pop = take & any_held  # the head leaves; the rest move down one entry
+        push = last_sb.valid & ~(take & ~any_held)  # the pipeline's sample is kept
+        base = Signal.like(held)  # where a pushed sample lands
+        m.d.comb += base.eq(held - pop)
+        for i in range(capacity):
+            moved = Mux(pop, buf[i + 1] if i + 1 < capacity else 0, buf[i])
+            m.d.sync += buf[i].eq(Mux(push & (base == i), pipe, moved))
+        m.d.sync += [held.eq(base + push), any_held.eq((base + push) != 0)]
         return m

@@ -3,7 +3,7 @@
 Sample order, as :mod:`model.kernel` states it: the baseline and noise windows accumulate as
 the samples pass, a peak at ``n - 1`` is decided after ``y[n]`` arrives, in three pipeline
 stages (the sample's comparisons; the threshold, rise and distance tests; the state update), the
-surface (first peak) is sent back to the filter from the last stage, the bottom candidate is kept
+surface (first peak) is sent back to the filter from stage 2, the bottom candidate is kept
 by one of the three rules, and when the frame's last sample leaves the pipeline the state is
 handed to a small sequential divider that computes the two sub-sample offsets while the next
 frame already streams in.
@@ -39,8 +39,8 @@ DIVIDE_STEPS = 9
 #: decision stages, the snapshot, the divider steps and the clock that raises ``o.valid``.
 RESULT_LATENCY = DIVIDE_STEPS + 5
 #: Clocks from accepting ``y[s + 1]`` to the surface message of the peak at ``s`` being valid
-#: (raised at the third edge: the decision's stage 3).
-SURFACE_LATENCY = 3
+#: (raised at the second edge: the decision's stage 2).
+SURFACE_LATENCY = 2
 _P_MAX_LOG2 = by_name("noise_log2").hi
 
 #: The detector's result for one frame: the window statistics and the two peak records
@@ -73,7 +73,7 @@ class PeakDetect(wiring.Component):
         bottom records. A frame shorter than ``W + 2P + 2`` reports ``mu = noise = 0``,
         ``thr = min_thr`` and no records, as the model.
     surface : Out(stream.Signature(SURFACE))
-        The surface sample ``n`` and the frame's tag, valid :data:`SURFACE_LATENCY` = 3 clocks
+        The surface sample ``n`` and the frame's tag, valid :data:`SURFACE_LATENCY` = 2 clocks
         after ``y[n + 1]`` is accepted, until taken (the filter takes it at once). A later
         surface message replaces one not yet taken.
     cfg : In(config_signature("peak"))
@@ -83,7 +83,7 @@ class PeakDetect(wiring.Component):
 
     Notes
     -----
-    Latency: the surface message is valid :data:`SURFACE_LATENCY` = 3 clocks after ``y[s + 1]``
+    Latency: the surface message is valid :data:`SURFACE_LATENCY` = 2 clocks after ``y[s + 1]``
     is accepted; the result beat :data:`RESULT_LATENCY` = 14 clocks after the frame's last
     sample is accepted. The input takes one sample per clock except that a frame's last sample
     waits while the previous frame's result is still being divided or not yet taken
@@ -185,18 +185,18 @@ class PeakDetect(wiring.Component):
                 s1_last.eq(d.last), s1_long.eq(long),
             ]
 
+        s1_peak = s1_lm & s1_kq & s1_cand & above_thr(s1_dmu)
         s2_valid, s2_peak, s2_sep = Signal(), Signal(), Signal()
         s2_last, s2_long = Signal(), Signal()
         s2_key = Signal(_KEY)  # y[n - 1] (rule 1) or its rise (rule 2)
         s2_here, s2_vmin0 = Signal(rec), Signal(_Y)
-        s2_tag = Signal.like(tag)
         m.d.sync += s2_valid.eq(s1_valid)
         with m.If(s1_valid):
             m.d.sync += [
-                s2_peak.eq(s1_lm & s1_kq & s1_cand & above_thr(s1_dmu)),
+                s2_peak.eq(s1_peak),
                 s2_sep.eq(s1_here.n >= srec.n + cfg.min_sep),
                 s2_key.eq(Mux(cfg.bottom_rule == 1, s1_here.b, s1_here.b - vmin)),
-                s2_here.eq(s1_here), s2_vmin0.eq(s1_vmin0), s2_tag.eq(s1_tag),
+                s2_here.eq(s1_here), s2_vmin0.eq(s1_vmin0),
                 s2_last.eq(s1_last), s2_long.eq(s1_long),
             ]
 
@@ -220,12 +220,14 @@ class PeakDetect(wiring.Component):
                         with m.If(above_thr(key) & (~brec.found | (key > best))):
                             m.d.comb += [brec_nx.eq(s2_here), best_nx.eq(key)]
 
-        # surface message: raised after the stage-3 edge, held until taken
+        # surface message: raised at the stage-2 edge, held until taken. Stage 2 of a peak at
+        # p reads srec as updated up to p - 2, and p - 1 is no peak (y[p - 1] < y[p]), so
+        # "no surface yet" is already exact there: one clock less of feedback than stage 3.
         with m.If(self.surface.ready):
             m.d.sync += self.surface.valid.eq(0)
-        with m.If(s2_valid & new_surface):
-            m.d.sync += [self.surface.valid.eq(1), self.surface.payload.n.eq(s2_here.n),
-                         self.surface.payload.tag.eq(s2_tag)]
+        with m.If(s1_valid & s1_peak & ~srec.found):
+            m.d.sync += [self.surface.valid.eq(1), self.surface.payload.n.eq(s1_here.n),
+                         self.surface.payload.tag.eq(s1_tag)]
 
         # ---- frame end: snapshot for the divider ----
         busy = Signal()  # a result is being divided or waits to be taken

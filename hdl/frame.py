@@ -1,0 +1,315 @@
+"""Frame packetizer: the HDL twin of :func:`model.frame.pack_frame` inside a link ``FRAME`` packet.
+
+One frame in (the gate's header, the frame's samples after the filter, the detector's result),
+one packet out, byte for byte ``encode_packet(PacketType.FRAME, seq, pack_frame(...))``, into a
+byte FIFO that takes a packet whole or drops it whole (``docs/spec.md`` sections 3 and 9)::
+
+    header ──┐
+    samples ─┼─► payload buffer ─► packet bytes ─► CRC-16 / CRC-32 ─► FIFO ─► o (data, last)
+    result ──┘   (words)           (at frame end)   (on the fly)       (whole packets)
+
+Why a buffer: the header's ``flags`` (``SURFACE``/``BOTTOM``) and, for peak frames, ``length``
+are known only at the frame's end, and they precede the payload (and sit inside the CRC-32), so
+the payload is kept until the detector's result arrives. Each sample is stored as one 32-bit word
+holding its payload item (raw codes, ``x`` or ``y``), whatever the frame type: the largest item
+(a filtered s32) fits, and the emitter reads one word per item.
+
+Why the admission at the start of a packet: the packet's size is known before its first byte is
+written, and only this block writes to the FIFO, so the free space can only grow while the
+packet is written; a packet admitted at its start never waits and never has to be withdrawn.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Const, Module, Mux, Signal, signed, unsigned
+from amaranth.lib import data, memory, stream, wiring
+from amaranth.lib.fifo import SyncFIFOBuffered
+from amaranth.lib.wiring import In, Out
+
+from model.layouts import FRAME_HEADER, PEAK_RECORD, FrameFlag, FrameType, item_bytes
+from model.link import (
+    BODY_CRC,
+    CRC_BYTES,
+    FIFO_BYTES,
+    HEADER_CRC,
+    LINK_SYNC_BYTES,
+    PACKET_HEADER,
+    PacketType,
+)
+from model.matched_filter import OUT_WIDTH
+from model.registers import by_name
+
+from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
+from .peak_detect import PEAK_RESULT
+
+__all__ = ["BYTE", "COUNT_BITS", "PACK_IN", "FramePacketizer", "packet_cycles"]
+
+#: A byte of the packet stream; ``last`` marks the last byte (the CRC's top byte) of a packet.
+BYTE = data.StructLayout({"data": unsigned(8), "last": unsigned(1)})
+
+#: A sample leaving the filter with everything a payload can hold: raw codes, stitched ``x``,
+#: filtered ``y``, and the frame markers.
+PACK_IN = data.StructLayout({
+    "codes": CODES,
+    "x": STITCHED,
+    "y": signed(OUT_WIDTH),
+    "first": unsigned(1),
+    "last": unsigned(1),
+})
+
+#: Width of the frame counters (``STATUS`` fields are u32, wrapping).
+COUNT_BITS = 32
+
+_WORD = 8 * max(item_bytes(t) for t in FrameType if t != FrameType.PEAKS)
+_REC = PEAK_RECORD.size
+_REC_SLOTS = 2  # surface and bottom
+_LEN = FRAME_HEADER["length"].bits
+_PKT_LEN = PACKET_HEADER["length"].bits
+_HDR = FRAME_HEADER.size
+#: Longest frame, samples (the largest ``gate_len``).
+GATE_LEN_MAX = by_name("gate_len").hi
+
+
+def packet_cycles(frame_type: int, n_samples: int) -> int:
+    """Clocks the packetizer spends on one admitted frame of ``n_samples`` samples.
+
+    ``n_samples`` clocks to take the samples, one to take the result, two to decide, then one
+    per packet byte (12 + 16 + payload; a peaks frame counted with both records); the wait for
+    the detector's result (``RESULT_LATENCY``) comes on top when the samples arrive back to
+    back.
+    """
+    items = 2 if frame_type == FrameType.PEAKS else n_samples
+    return n_samples + 3 + PACKET_HEADER.size + _HDR + items * item_bytes(frame_type) + CRC_BYTES
+
+
+class FramePacketizer(wiring.Component):
+    """Whole-frame link packets from header, samples and peak result; a whole-packet FIFO.
+
+    Bit-exact: the bytes on ``o`` are ``model.link.encode_packet(PacketType.FRAME, seq,
+    frame)`` for each admitted frame, ``frame`` as ``model.device.encode_batch`` makes it, and
+    ``seq`` counts admitted packets modulo 256 (``model.device.Device._push_frame``).
+
+    Parameters
+    ----------
+    capacity : int
+        FIFO capacity in bytes (``FIFO_BYTES`` = 32768 in the reference device). A packet is
+        admitted only if ``fifo_level + packet bytes <= capacity``.
+    max_samples : int
+        Payload buffer, in samples (32-bit words): 4096 (``GATE_LEN_MAX``) holds the longest
+        frame of every type, 16 KiB. A frame with more samples is dropped (counted).
+
+    Attributes
+    ----------
+    header : In(stream.Signature(FRAME_HEADER_LAYOUT))
+        The gate's header of each frame (``flags`` without the detector's bits). It must come
+        before the frame's first sample is taken: ``i`` waits for it (never the reverse, so a
+        gate that sends a header after its frame's last sample cannot deadlock it).
+        ``frame_type`` and ``length`` are those latched by the gate at the trigger.
+    i : In(stream.Signature(PACK_IN))
+        The frame's samples; ``last`` ends the frame. Taken one per clock while collecting.
+    result : In(stream.Signature(PEAK_RESULT))
+        The detector's result of the frame, taken after its last sample.
+    o : Out(stream.Signature(BYTE))
+        Packet bytes, whole packets only.
+    frames_sent, frames_dropped : Out(COUNT_BITS)
+        Packets admitted to the FIFO, frames dropped (FIFO full, or longer than the buffer),
+        both modulo 2^32.
+    fifo_level : Out(COUNT_BITS)
+        Bytes in the FIFO, not yet taken from ``o`` (packet bytes with header and CRC).
+    busy : Out(1)
+        A frame has been started (header taken) and its packet is not finished.
+
+    Notes
+    -----
+    Latency: the packet's first byte is written to the FIFO on the third clock edge after the
+    one that takes the result (size, admission, first byte) and appears on ``o`` 2 clocks later
+    (the FIFO's read register); then one byte per clock while ``o`` is ready. While a packet is
+    written (one byte per clock, never stalled), the next frame's samples wait:
+    :func:`packet_cycles` gives the clocks a frame occupies the block.
+    """
+
+    def __init__(self, capacity: int = FIFO_BYTES, max_samples: int = GATE_LEN_MAX):
+        for name, v, lo, hi in (("capacity", capacity, 1, 1 << 24),
+                                ("max_samples", max_samples, 1, GATE_LEN_MAX)):
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                self._MustUse__silence = True
+                raise ValueError(f"{name} must be an integer in {lo}..{hi}, not {v!r}")
+        self.capacity = capacity
+        self.max_samples = max_samples
+        super().__init__({
+            "header": In(stream.Signature(FRAME_HEADER_LAYOUT)),
+            "i": In(stream.Signature(PACK_IN)),
+            "result": In(stream.Signature(PEAK_RESULT)),
+            "o": Out(stream.Signature(BYTE)),
+            "frames_sent": Out(COUNT_BITS),
+            "frames_dropped": Out(COUNT_BITS),
+            "fifo_level": Out(COUNT_BITS),
+            "busy": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        # One entry more than the capacity, so that the inner memory alone holds `capacity`
+        # bytes and an admitted packet finds w_rdy on every byte (as hdl/gate.py does).
+        fifo = m.submodules.fifo = SyncFIFOBuffered(width=BYTE.size, depth=self.capacity + 1)
+        buf = m.submodules.buf = memory.Memory(shape=_WORD, depth=self.max_samples, init=[])
+        wr = buf.write_port()
+        rd = buf.read_port(domain="sync")
+        hcrc = m.submodules.hcrc = HEADER_CRC(data_width=8).create()
+        bcrc = m.submodules.bcrc = BODY_CRC(data_width=8).create()
+
+        hdr = Signal(FRAME_HEADER_LAYOUT)
+        res = Signal(PEAK_RESULT)
+        n = Signal(range(self.max_samples + 1))  # samples taken
+        over = Signal()  # the frame had more samples than the buffer holds
+        ftype = hdr.frame_type
+        is_peaks = ftype == FrameType.PEAKS
+
+        # ---- collect: header first, then the samples into the buffer ----
+        beat = self.i.payload
+        item = Signal(_WORD)
+        with m.Switch(ftype):
+            with m.Case(FrameType.RAW):
+                m.d.comb += item.eq(Cat(beat.codes.l, beat.codes.m, beat.codes.h))
+            with m.Case(FrameType.STITCHED):
+                m.d.comb += item.eq(beat.x.as_unsigned())
+            with m.Case(FrameType.FILTERED):
+                m.d.comb += item.eq(beat.y)  # sign-extended to the word (an s32 item)
+        m.d.comb += [wr.addr.eq(n), wr.data.eq(item)]
+
+        # ---- the finished frame: flags, length, sizes ----
+        found_s = res.surface.kind != 0
+        found_b = res.bottom.kind != 0
+        count = Signal(2)
+        m.d.comb += count.eq(found_s + found_b)
+        length = Signal(_LEN)
+        m.d.comb += length.eq(Mux(is_peaks, count, hdr.length))
+        ibytes = Signal(range(_REC + 1))
+        with m.Switch(ftype):
+            for t in FrameType:
+                with m.Case(t):
+                    m.d.comb += ibytes.eq(item_bytes(t))
+        body = Signal(_PKT_LEN)  # frame bytes: header + payload
+        m.d.comb += body.eq(_HDR + length * ibytes)
+        size = Signal(range(1 << (_PKT_LEN + 1)))
+        m.d.comb += size.eq(body + PACKET_HEADER.size + CRC_BYTES)
+        fin = Signal(FRAME_HEADER_LAYOUT)  # the header as sent
+        m.d.comb += [
+            fin.eq(hdr),
+            fin.flags.eq(hdr.flags | Mux(found_s, int(FrameFlag.SURFACE), 0)
+                         | Mux(found_b, int(FrameFlag.BOTTOM), 0)),
+            fin.length.eq(length),
+        ]
+
+        # ---- emit: packet header, frame header (+ records), samples, CRC ----
+        seq = Signal(8)
+        fits = Signal()
+        m.d.sync += fits.eq(self.fifo_level + size <= self.capacity)
+        pkt = Signal(8 * PACKET_HEADER.size)  # sync, type, seq, length; hcrc mux'd in at 6, 7
+        sh = Signal(8 * (_HDR + _REC_SLOTS * _REC))  # frame header then the two records
+        word = Signal(_WORD)
+        pos = Signal(range(PACKET_HEADER.size + 1))
+        left = Signal(_PKT_LEN + 1)  # bytes left in the current section
+        j = Signal(range(_REC + 1))  # byte within the current sample item
+        crc_i = Signal(range(CRC_BYTES))
+        body_start = Signal()  # the next body byte is the first: restart the CRC-32
+        byte = Signal(8)
+        w_en = Signal()
+        w_last = Signal()
+        m.d.comb += [
+            fifo.w_data.eq(Cat(byte, w_last)),
+            fifo.w_en.eq(w_en),
+            bcrc.data.eq(byte),
+            hcrc.data.eq(byte),
+        ]
+
+        with m.FSM():
+            with m.State("HEADER"):
+                m.d.comb += self.header.ready.eq(1)
+                with m.If(self.header.valid):
+                    m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0)]
+                    m.next = "COLLECT"
+            with m.State("COLLECT"):
+                m.d.comb += [self.busy.eq(1), self.i.ready.eq(1)]
+                with m.If(self.i.valid):
+                    # peak frames need no samples; an overlong frame is dropped at its end
+                    m.d.comb += wr.en.eq(~is_peaks & (n < self.max_samples))
+                    with m.If(n < self.max_samples):
+                        m.d.sync += n.eq(n + 1)
+                    with m.Else():
+                        m.d.sync += over.eq(1)
+                    with m.If(beat.last):
+                        m.next = "RESULT"
+            with m.State("RESULT"):
+                m.d.comb += [self.busy.eq(1), self.result.ready.eq(1)]
+                with m.If(self.result.valid):
+                    m.d.sync += res.eq(self.result.payload)
+                    m.next = "SIZE"
+            with m.State("SIZE"):
+                # the size is known from the stored result; `fits` registers it (a long path)
+                m.d.comb += self.busy.eq(1)
+                m.next = "DECIDE"
+            with m.State("DECIDE"):
+                m.d.comb += self.busy.eq(1)
+                with m.If(fits & ~over):
+                    m.d.sync += [
+                        pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
+                                   Const(PacketType.FRAME, 8), seq, body)),
+                        sh.eq(Cat(fin, res.surface, res.bottom)),
+                        pos.eq(0),
+                        rd.addr.eq(0),
+                        seq.eq(seq + 1),
+                        self.frames_sent.eq(self.frames_sent + 1),
+                    ]
+                    m.next = "LINK_HEADER"
+                with m.Else():
+                    m.d.sync += self.frames_dropped.eq(self.frames_dropped + 1)
+                    m.next = "HEADER"
+            with m.State("LINK_HEADER"):
+                m.d.comb += [self.busy.eq(1), w_en.eq(1)]
+                m.d.comb += byte.eq(Mux(pos == 6, hcrc.crc[:8],
+                                        Mux(pos == 7, hcrc.crc[8:], pkt[:8])))
+                m.d.comb += [hcrc.valid.eq((pos >= 2) & (pos < 6)), hcrc.start.eq(pos == 2)]
+                m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos + 1)]
+                with m.If(pos == PACKET_HEADER.size - 1):
+                    # frame header, plus the records of a peaks frame
+                    m.d.sync += [left.eq(_HDR + Mux(is_peaks, length * _REC, 0)),
+                                 body_start.eq(1)]
+                    m.next = "FRAME_HEADER"
+            with m.State("FRAME_HEADER"):
+                m.d.comb += [self.busy.eq(1), w_en.eq(1), byte.eq(sh[:8]),
+                             bcrc.valid.eq(1), bcrc.start.eq(body_start)]
+                m.d.sync += [sh.eq(sh >> 8), left.eq(left - 1), body_start.eq(0)]
+                with m.If(left == 1):
+                    # the buffer's word 0 has been on the read port since DECIDE
+                    m.d.sync += [left.eq(Mux(is_peaks, 0, length)), j.eq(0),
+                                 word.eq(rd.data), rd.addr.eq(1), crc_i.eq(0)]
+                    with m.If(is_peaks | (length == 0)):
+                        m.next = "CRC"
+                    with m.Else():
+                        m.next = "SAMPLES"
+            with m.State("SAMPLES"):
+                # `left` counts items; the next word is read while this one is sent (each item
+                # has at least two bytes, so the read port has settled by the time it is used)
+                m.d.comb += [self.busy.eq(1), w_en.eq(1), byte.eq(word[:8]), bcrc.valid.eq(1)]
+                m.d.sync += [word.eq(word >> 8), j.eq(j + 1)]
+                with m.If(j == ibytes - 1):
+                    m.d.sync += [word.eq(rd.data), rd.addr.eq(rd.addr + 1), j.eq(0),
+                                 left.eq(left - 1)]
+                    with m.If(left == 1):
+                        m.next = "CRC"
+            with m.State("CRC"):
+                m.d.comb += [self.busy.eq(1), w_en.eq(1),
+                             byte.eq(bcrc.crc.word_select(crc_i, 8)),
+                             w_last.eq(crc_i == CRC_BYTES - 1)]
+                m.d.sync += crc_i.eq(crc_i + 1)
+                with m.If(crc_i == CRC_BYTES - 1):
+                    m.next = "HEADER"
+
+        m.d.comb += [
+            self.o.payload.eq(fifo.r_data),
+            self.o.valid.eq(fifo.r_rdy),
+            fifo.r_en.eq(self.o.ready),
+            self.fifo_level.eq(fifo.level),
+        ]
+        return m

@@ -1,0 +1,241 @@
+"""The digitizer pipeline: ADC codes in, whole FRAME link packets out (spec sections 2-5, 9).
+
+::
+
+    i (codes, trigger, line_sync) ─► Stitch ─► Gate ─► FilterDetect ─► FramePacketizer ─► o
+                  └── codes, events ──┘  └ codes, x ┘  (y, result)      (+ header)   bytes
+
+Each stage is the component of its own module; this one only joins them. Values that a stage
+does not carry travel beside it in a small FIFO and are joined again at its output (codes and
+events beside the stitch, codes and ``x`` beside the filter), so no stage latency is assumed:
+the side FIFOs are sized from the stages' ``LATENCY`` constants, and a stage that grows a
+register only costs a side FIFO entry's worth of throughput, never a wrong pairing.
+
+Bank switches (the link's ``BANK_COMMIT``). A frame is *inside* from the clock its first sample
+enters the filter to the clock the packetizer takes its detector result; ``frame_idle`` is high
+when none is. The link raises ``bank_busy``, waits for ``frame_idle``, writes the coefficients
+(``coef``), sets ``templates``, ``taps`` and ``bank_id``, and drops ``bank_busy``. While
+``bank_busy`` is high no frame enters the filter (frames wait in the gate's FIFO, so no shot is
+lost unless it overflows), so a frame is filtered with one bank only, and the header carries
+the ``bank_id`` of that bank: the header is handed to the packetizer only once its frame is
+inside, and ``bank_id`` is written into it then.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module, Signal
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFO
+from amaranth.lib.wiring import In, Out
+
+from model.layouts import FRAME_HEADER
+from model.link import FIFO_BYTES
+from model.matched_filter import K_MAX, L_MAX
+
+from . import matched_filter, stitch
+from .detect import FilterDetect
+from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, FramePacketizer
+from .gate import Gate
+from .layouts import CODES, STITCHED, config_signature
+from .matched_filter import COEF_WRITE
+
+__all__ = ["ADC_IN", "Pipeline"]
+
+#: One ADC clock: the three codes, the outgoing-pulse trigger and the scan line sync.
+ADC_IN = data.StructLayout({
+    "codes": CODES,
+    "trigger": 1,
+    "line_sync": 1,
+})
+
+_BESIDE_FILTER = data.StructLayout({"codes": CODES, "x": STITCHED})
+_INSIDE_BITS = 8  # frames inside the filter/detector: a handful at most
+
+
+class Pipeline(wiring.Component):
+    """Stitch, gate, filter and detector, frame packetizer and FIFO: the device minus its link.
+
+    Bit-exact to the model device's frames (``model.device.reference_frames`` wrapped by
+    ``encode_packet``) for every frame it delivers; frames it cannot take are dropped whole and
+    counted, never sent in part.
+
+    Parameters
+    ----------
+    fifo_bytes : int
+        Frame FIFO capacity, bytes (``FIFO_BYTES`` = 32768 in the reference device).
+    gate_depth : int
+        The gate's sample FIFO (4096 lets any one frame in; frames wait there while the
+        packetizer is busy or ``bank_busy`` holds them).
+    max_samples : int
+        The packetizer's payload buffer, samples (4096 holds every frame).
+
+    Attributes
+    ----------
+    i : In(stream.Signature(ADC_IN))
+        One ADC sample clock per transfer (clocks with ``valid`` low are not samples).
+        ``i.ready`` is 1 in operation: every stage after it absorbs or drops, never stalls it.
+    o : Out(stream.Signature(BYTE))
+        Whole ``FRAME`` packets, ``last`` on each packet's final byte.
+    cfg_stitch, cfg_gate, cfg_filter, cfg_peak : In(config_signature(group))
+        The four register groups.
+    coef : In(stream.Signature(COEF_WRITE))
+        Coefficient writes into the filter's bank (write only while ``frame_idle`` and
+        ``bank_busy``).
+    templates, taps : In
+        ``K`` and ``L`` of the bank in use.
+    bank_id : In(8)
+        Written into the header of each frame as it enters the packetizer.
+    acquiring : In(1)
+        Triggers are ignored while low (the gate still runs its time counters).
+    bank_busy : In(1)
+        While high, no new frame enters the filter.
+    frame_idle : Out(1)
+        No frame inside the filter, the detector or the packetizer's collection (meaningful
+        while ``bank_busy`` is high; it rises once the frames inside have their results).
+    frames_sent, frames_dropped, fifo_level, shots : Out(32)
+        Packets admitted to the FIFO; frames dropped whole (FIFO full, or the gate's FIFO full);
+        bytes waiting in the FIFO; frames made (frames the gate completed and handed on, plus
+        those it dropped: ``frames_sent + frames_dropped`` once the pipeline is idle).
+
+    Notes
+    -----
+    Latency: a frame's packet starts once the frame has been captured whole (its header exists
+    only then) and streamed through the filter and detector: about ``gate_delay + 2 gate_len +
+    RESULT_LATENCY`` clocks after its trigger plus the stage latencies, then one byte per clock.
+    Throughput: the packetizer takes :func:`hdl.frame.packet_cycles` clocks per frame; at a
+    higher trigger rate frames queue in the gate's FIFO and, when it is full, are dropped
+    there (counted in ``frames_dropped``).
+    """
+
+    def __init__(self, fifo_bytes: int = FIFO_BYTES, gate_depth: int = GATE_LEN_MAX,
+                 max_samples: int = GATE_LEN_MAX):
+        self.fifo_bytes = fifo_bytes
+        self.gate_depth = gate_depth
+        self.max_samples = max_samples
+        super().__init__({
+            "i": In(stream.Signature(ADC_IN)),
+            "o": Out(stream.Signature(BYTE)),
+            "cfg_stitch": In(config_signature("stitch")),
+            "cfg_gate": In(config_signature("gate")),
+            "cfg_filter": In(config_signature("filter")),
+            "cfg_peak": In(config_signature("peak")),
+            "coef": In(stream.Signature(COEF_WRITE)),
+            "templates": In(range(K_MAX + 1), init=1),
+            "taps": In(range(L_MAX + 1), init=L_MAX),
+            "bank_id": In(FRAME_HEADER["bank_id"].bits),
+            "acquiring": In(1),
+            "bank_busy": In(1),
+            "frame_idle": Out(1),
+            "frames_sent": Out(COUNT_BITS),
+            "frames_dropped": Out(COUNT_BITS),
+            "fifo_level": Out(COUNT_BITS),
+            "shots": Out(COUNT_BITS),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.stitch = st = stitch.Stitch()
+        m.submodules.gate = gate = Gate(depth=self.gate_depth)
+        m.submodules.detect = fd = FilterDetect()
+        m.submodules.pack = pk = FramePacketizer(self.fifo_bytes, self.max_samples)
+        # Side FIFOs: one entry per sample a stage can hold, plus two so that the fork never
+        # waits on them in steady flow.
+        ev = m.submodules.beside_stitch = SyncFIFO(width=ADC_IN.size,
+                                                   depth=stitch.LATENCY + 2)
+        cx = m.submodules.beside_filter = SyncFIFO(width=_BESIDE_FILTER.size,
+                                                   depth=matched_filter.LATENCY + 2)
+
+        wiring.connect(m, wiring.flipped(self.cfg_stitch), st.cfg)
+        wiring.connect(m, wiring.flipped(self.cfg_gate), gate.cfg)
+        wiring.connect(m, wiring.flipped(self.cfg_filter), fd.cfg_filter)
+        wiring.connect(m, wiring.flipped(self.cfg_peak), fd.cfg_peak)
+        wiring.connect(m, wiring.flipped(self.coef), fd.coef)
+        wiring.connect(m, wiring.flipped(self.o), pk.o)
+        m.d.comb += [fd.templates.eq(self.templates), fd.taps.eq(self.taps),
+                     gate.bank_id.eq(self.bank_id)]
+
+        # ---- ADC -> stitch (codes) + beside it (codes, events) -> gate ----
+        adc = ADC_IN(self.i.payload)
+        events = Signal(ADC_IN)
+        m.d.comb += [
+            events.codes.eq(adc.codes),
+            events.trigger.eq(adc.trigger & self.acquiring),
+            events.line_sync.eq(adc.line_sync),
+            st.i.payload.eq(adc.codes),
+            ev.w_data.eq(events),
+            st.i.valid.eq(self.i.valid & ev.w_rdy),
+            ev.w_en.eq(self.i.valid & st.i.ready),
+            self.i.ready.eq(st.i.ready & ev.w_rdy),
+        ]
+        side = ADC_IN(ev.r_data)
+        g = gate.i.payload
+        m.d.comb += [
+            g.codes.eq(side.codes),
+            g.x.eq(st.o.payload),
+            g.trigger.eq(side.trigger),
+            g.line_sync.eq(side.line_sync),
+            gate.i.valid.eq(st.o.valid & ev.r_rdy),
+            st.o.ready.eq(gate.i.ready & ev.r_rdy),
+            ev.r_en.eq(gate.i.ready & st.o.valid),
+        ]
+
+        # ---- gate -> filter/detector (x) + beside it (codes, x); bank_busy holds a new frame
+        go = gate.o.payload
+        hold = go.first & self.bank_busy
+        m.d.comb += [
+            fd.i.payload.x.eq(go.x),
+            fd.i.payload.first.eq(go.first),
+            fd.i.payload.last.eq(go.last),
+            cx.w_data.eq(Cat(go.codes, go.x)),
+            fd.i.valid.eq(gate.o.valid & cx.w_rdy & ~hold),
+            cx.w_en.eq(gate.o.valid & fd.i.ready & ~hold),
+            gate.o.ready.eq(fd.i.ready & cx.w_rdy & ~hold),
+        ]
+        enters = fd.i.valid & fd.i.ready & go.first
+
+        # ---- filter output + beside it -> packetizer samples; result -> packetizer ----
+        beside = _BESIDE_FILTER(cx.r_data)
+        p = pk.i.payload
+        m.d.comb += [
+            p.codes.eq(beside.codes),
+            p.x.eq(beside.x),
+            p.y.eq(fd.y.payload.y),
+            p.first.eq(fd.y.payload.first),
+            p.last.eq(fd.y.payload.last),
+            pk.i.valid.eq(fd.y.valid & cx.r_rdy),
+            fd.y.ready.eq(pk.i.ready & cx.r_rdy),
+            cx.r_en.eq(pk.i.ready & fd.y.valid),
+        ]
+        wiring.connect(m, fd.o, pk.result)
+        done = pk.result.valid & pk.result.ready
+
+        # ---- headers: handed over once their frame is inside, stamped with bank_id ----
+        inside = Signal(_INSIDE_BITS)  # frames entered, results not yet taken
+        waiting = Signal(_INSIDE_BITS)  # frames entered, headers not yet taken
+        m.d.sync += [inside.eq(inside + enters - done)]
+        h_take = pk.header.valid & pk.header.ready
+        m.d.sync += waiting.eq(waiting + enters - h_take)
+        m.d.comb += [
+            pk.header.payload.eq(gate.header.payload),
+            pk.header.payload.bank_id.eq(self.bank_id),
+            pk.header.valid.eq(gate.header.valid & (waiting != 0)),
+            gate.header.ready.eq(pk.header.ready & (waiting != 0)),
+            self.frame_idle.eq(inside == 0),
+        ]
+
+        # ---- counters ----
+        gate_drops = Signal(COUNT_BITS)
+        prev = Signal.like(gate.dropped)
+        m.d.sync += prev.eq(gate.dropped)
+        with m.If(gate.dropped != prev):  # it moves by one at most per clock, then saturates
+            m.d.sync += gate_drops.eq(gate_drops + 1)
+        made = Signal(COUNT_BITS)  # frames the gate has completed
+        with m.If(gate.header.valid & gate.header.ready):
+            m.d.sync += made.eq(made + 1)
+        m.d.comb += [
+            self.frames_sent.eq(pk.frames_sent),
+            self.frames_dropped.eq(pk.frames_dropped + gate_drops),
+            self.fifo_level.eq(pk.fifo_level),
+            self.shots.eq(made + gate_drops),
+        ]
+        return m

@@ -1,0 +1,128 @@
+"""hdl.pipeline.Pipeline against the model device: every byte of every FRAME packet.
+
+The ADC stream is the emulator's: shot ``k`` of a ``SceneSource`` (the seed000 survey scene)
+starts at clock ``k * prf_clocks`` with its trigger, a line sync every ``LINE_SYNC_SHOTS``
+shots; the expected bytes are ``model.device.reference_frames`` wrapped by ``encode_packet`` with
+``seq`` counting admitted packets, as ``Device._push_frame`` does. The scene's own bank (K = 8,
+L = 64, ``firmware_host.coeffs.scene_bank``) is written through ``coef`` first. Every frame type,
+plain and with backpressure on the output; then overload with a small FIFO and a slow
+consumer. Two Verilator builds (the production FIFO and the small one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_hdl_matched_filter import coef_source
+
+from hdl.frame import BYTE, packet_cycles
+from hdl.peak_detect import RESULT_LATENCY
+from hdl.pipeline import ADC_IN, Pipeline
+from hdl.tb.bridge import adc_stream
+from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.tb.streams import BACKPRESSURE, PLAIN, Pattern
+from model.device import SceneSource, reference_frames
+from model.layouts import FrameType
+from model.link import PacketType, encode_packet, packet_size
+from model.registers import Config
+
+BANK_ID = 3
+N_FRAMES = 5
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """Source, bank and registers of the seed000 survey scene, as ``albcap demo`` sets them."""
+    from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
+    from sim.scene import preset
+
+    sc = survey_scene(preset("seed000"))
+    src = SceneSource(sc, seed=5, pool=8)
+    sb = scene_bank(sc, n_templates=8, n_taps=64)
+    cfg = Config(gate_len=src.n_samples, noise_log2=SURVEY_NOISE_LOG2, out_shift=sb.out_shift,
+                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, min_thr=sb.min_thr,
+                 bottom_rule=2)
+    return src, sb.bank, cfg
+
+
+def adc_source(src: SceneSource, n: int, prf_clocks: int, pattern: Pattern = PLAIN) -> Source:
+    """``n`` shots of the scene as an ADC stream, plus one shot's worth of quiet clocks."""
+    return Source(ADC_IN, adc_stream(src, n, prf_clocks), pattern)
+
+
+def run_pipeline(tmp_path, design, src, bank, cfg, n, prf_clocks, sink: Pattern, label,
+                 max_clocks=None):
+    static = {**cfg_ports(cfg, "stitch", "cfg_stitch"), **cfg_ports(cfg, "gate", "cfg_gate"),
+              **cfg_ports(cfg, "filter", "cfg_filter"), **cfg_ports(cfg, "peak", "cfg_peak"),
+              "templates": bank.K, "taps": bank.L, "bank_id": BANK_ID, "acquiring": 1,
+              "bank_busy": 0}
+    return run(design, tmp_path,
+               sources={"coef": coef_source(bank), "i": adc_source(src, n, prf_clocks)},
+               sinks={"o": Sink(BYTE, sink)}, static=static,
+               watch=("frames_sent", "frames_dropped", "fifo_level", "shots", "frame_idle"),
+               quiet_clocks=prf_clocks + 4 * cfg.gate_len,
+               max_clocks=max_clocks or (n + 20) * prf_clocks,
+               label=label)
+
+
+def packets(data: bytes) -> list[bytes]:
+    """Split the output at packet boundaries (lengths from the packet headers)."""
+    out, at = [], 0
+    while at < len(data):
+        size = packet_size(int.from_bytes(data[at + 4:at + 6], "little"))
+        out.append(data[at:at + size])
+        at += size
+    return out
+
+
+def prf_for(ftype: int, gate_len: int) -> int:
+    """A trigger period the packetizer keeps up with: its clocks per frame plus a margin."""
+    return max(gate_len, packet_cycles(ftype, gate_len)) + RESULT_LATENCY + 64
+
+
+@pytest.mark.parametrize("sink_name", ["plain", "backpressure"])
+@pytest.mark.parametrize("ftype", list(FrameType), ids=[t.name.lower() for t in FrameType])
+def test_frames(tmp_path, scene, ftype, sink_name):
+    src, bank, cfg = scene
+    cfg = cfg.replace(frame_type=ftype)
+    prf = prf_for(ftype, cfg.gate_len)
+    sink = {"plain": PLAIN, "backpressure": BACKPRESSURE}[sink_name]
+    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, N_FRAMES, prf, sink,
+                       f"pipeline-{ftype.name.lower()}-{sink_name}")
+    assert not res.timeout and res.violations == {"o": 0}
+    data = bytes(res.sinks["o"]["data"].astype(np.uint8).tolist())
+    ref = reference_frames(src, cfg, bank, 0, N_FRAMES, prf, bank_id=BANK_ID)
+    got = packets(data)
+    assert len(got) == N_FRAMES
+    for seq, (g, frame) in enumerate(zip(got, ref, strict=True)):
+        assert g == encode_packet(PacketType.FRAME, seq, frame), f"packet {seq} differs"
+    ends = np.flatnonzero(res.sinks["o"]["last"]) + 1
+    assert ends.tolist() == np.cumsum([len(g) for g in got]).tolist()
+    assert res.watch == {"frames_sent": N_FRAMES, "frames_dropped": 0, "fifo_level": 0,
+                         "shots": N_FRAMES, "frame_idle": 1}
+    assert res.sources["i"]["stalls"] == 0, "the ADC input must never wait"
+    if ftype == FrameType.PEAKS:
+        assert all(f[3] & 0x0C == 0x0C for f in ref), "the scene has a surface and a bottom"
+
+
+def test_overload_drops_whole_frames(tmp_path, scene):
+    """Small FIFO, slow consumer, triggers faster than the packets leave: drops, all whole."""
+    src, bank, cfg = scene
+    cfg = cfg.replace(frame_type=FrameType.STITCHED)
+    fifo = 4000  # two stitched packets (1 512 bytes each) fit, a third does not
+    n, prf = 12, cfg.gate_len + 64
+    res = run_pipeline(tmp_path, Design(Pipeline, fifo_bytes=fifo), src, bank, cfg, n, prf,
+                       Pattern("periodic", on=1, off=5), "pipeline-overload",
+                       max_clocks=400_000)
+    assert not res.timeout and res.violations == {"o": 0}
+    got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
+    ref = reference_frames(src, cfg, bank, 0, n, prf, bank_id=BANK_ID)
+    shots = [int.from_bytes(g[8 + 10:8 + 12], "little") for g in got]
+    assert shots == sorted(set(shots)) and len(shots) < n
+    for seq, (g, s) in enumerate(zip(got, shots, strict=True)):
+        assert g == encode_packet(PacketType.FRAME, seq, ref[s]), f"shot {s} differs"
+    w = res.watch
+    assert w["frames_sent"] == len(got)
+    assert w["frames_sent"] + w["frames_dropped"] == w["shots"] == n
+    assert w["fifo_level"] == 0 and w["frame_idle"] == 1
+    assert res.sources["i"]["stalls"] == 0
