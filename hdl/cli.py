@@ -89,7 +89,9 @@ def register(subparsers) -> None:
         "synth", help="FPGA figures (fmax, LUTs, FFs, DSPs, BRAMs) for an ECP5-85, speed 6",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     syn.add_argument("--json", action="store_true", help="print one JSON object")
-    syn.add_argument("--component", action="append", choices=sorted(COMPONENTS),
+    from .synth import synth_components
+
+    syn.add_argument("--component", action="append", choices=sorted(synth_components()),
                      help="only this component (repeatable; default all)")
     syn.add_argument("--freq", type=float, default=200.0, help="clock constraint, MHz")
     syn.set_defaults(func=_synth)

