@@ -1,9 +1,9 @@
 """The device's link side in hardware: the HDL twin of :mod:`model.device` (commands and acks).
 
-:class:`Link` receives command packets (:class:`~hdl.link_rx.LinkReceiver`), executes them
+:class:`Link` receives command packets (:class:`~hdl._link_rx.LinkReceiver`), executes them
 against the register map, the shadow coefficient memory and the status inputs, and answers each
 with the acknowledgement bytes :class:`model.device.Device` sends, byte for byte
-(:class:`~hdl.link_tx.LinkTransmitter`, which also forwards the encoded frame packets of the
+(:class:`~hdl._link_tx.LinkTransmitter`, which also forwards the encoded frame packets of the
 frame path). Acquisition, the frame FIFO and the transmitter's line rate belong to the top level
 and the UART (:mod:`hdl.uart`); Link sees only their counters.
 """
@@ -27,12 +27,14 @@ from model.link import (
 from model.matched_filter import K_MAX, L_MAX
 from model.registers import REGISTERS
 
+from ._link_rx import LinkReceiver, check_buffer_bytes, max_payload
+from ._link_tx import ACK_INFO, FRAME_BYTE, LinkTransmitter
 from .layouts import config_signature
-from .link_rx import LinkReceiver, check_buffer_bytes
-from .link_tx import ACK_INFO, FRAME_BYTE, LinkTransmitter
 from .matched_filter import COEF_WRITE
 
-__all__ = ["ACK_LATENCY", "GROUPS", "POWER_ON_COEF", "Link"]
+# The receiver and the transmitter are private parts of Link (twin of model.device); what a
+# testbench or a top level needs of them is re-exported here.
+__all__ = ["ACK_LATENCY", "FRAME_BYTE", "GROUPS", "POWER_ON_COEF", "Link", "max_payload"]
 
 #: Register groups in map order; Link has one output ``cfg_<group>`` per group.
 GROUPS = tuple(dict.fromkeys(r.group for r in REGISTERS))
@@ -64,7 +66,7 @@ class Link(wiring.Component):
     fifo_capacity : int
         Frame FIFO capacity in bytes, reported by ``STATUS`` (the top level owns the FIFO).
     rx_buffer : int
-        Receiver ring in bytes (power of two), see :class:`~hdl.link_rx.LinkReceiver`: packets
+        Receiver ring in bytes (power of two), see :class:`~hdl._link_rx.LinkReceiver`: packets
         longer than ``rx_buffer - 10`` payload bytes are rejected at the header.
 
     Attributes

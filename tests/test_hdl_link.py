@@ -16,9 +16,7 @@ import numpy as np
 import pytest
 
 from firmware_host.protocol import PacketParser
-from hdl.device import ACK_LATENCY, GROUPS, POWER_ON_COEF, Link
-from hdl.link_rx import max_payload
-from hdl.link_tx import FRAME_BYTE
+from hdl.device import ACK_LATENCY, FRAME_BYTE, GROUPS, POWER_ON_COEF, Link, max_payload
 from hdl.matched_filter import COEF_WRITE
 from hdl.tb.amsim import simulate
 from hdl.tb.cosim import Design, Sink, Source, run
