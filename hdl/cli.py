@@ -63,7 +63,19 @@ def _export(args) -> int:
 def _synth(args) -> int:
     from .synth import print_table, synth_all
 
-    res = synth_all(args.component, args.freq)
+    params = {}
+    for item in args.param or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.isidentifier():
+            raise SystemExit(f"--param wants NAME=VALUE (an integer value), not {item!r}")
+        try:
+            params[key] = int(value, 0)
+        except ValueError:
+            raise SystemExit(
+                f"--param {key}: the value must be an integer, not {value!r}") from None
+    if params and len(args.component or []) != 1:
+        raise SystemExit("--param needs exactly one --component (the keywords are its own)")
+    res = synth_all(args.component, args.freq, params or None)
     if args.json:
         print(json.dumps(res, indent=1))
     else:
@@ -94,4 +106,7 @@ def register(subparsers) -> None:
     syn.add_argument("--component", action="append", choices=sorted(synth_components()),
                      help="only this component (repeatable; default all)")
     syn.add_argument("--freq", type=float, default=200.0, help="clock constraint, MHz")
+    syn.add_argument("--param", action="append", metavar="NAME=VALUE",
+                     help="constructor keyword of the one --component, e.g. lanes=8 "
+                          "(repeatable)")
     syn.set_defaults(func=_synth)

@@ -33,45 +33,46 @@ def write_verilog(component: wiring.Component, name: str, out_dir) -> Path:
     return path
 
 
-def _stitch():
+def _stitch(**params):
     from .stitch import Stitch
-    return Stitch()
+    return Stitch(**params)
 
 
-def _gate():
+def _gate(**params):
     from .gate import Gate
-    return Gate()
+    return Gate(**params)
 
 
-def _matched_filter():
+def _matched_filter(**params):
     from .matched_filter import MatchedFilter
-    return MatchedFilter()
+    return MatchedFilter(**params)
 
 
-def _peak_detect():
+def _peak_detect(**params):
     from .peak_detect import PeakDetect
-    return PeakDetect()
+    return PeakDetect(**params)
 
 
-def _filter_detect():
+def _filter_detect(**params):
     from .detect import FilterDetect
-    return FilterDetect()
+    return FilterDetect(**params)
 
 
-def _load(module: str, cls: str):
+def _load(module: str, cls: str, **params):
     import importlib
 
-    return getattr(importlib.import_module(f"{__package__}.{module}"), cls)()
+    return getattr(importlib.import_module(f"{__package__}.{module}"), cls)(**params)
 
 
-#: Exported components by module name, each with its production parameters.
+#: Exported components by module name: factories taking the component's constructor keywords
+#: (none given: its production parameters).
 COMPONENTS = {
     "albcap_stitch": _stitch,
     "albcap_gate": _gate,
     "albcap_matched_filter": _matched_filter,
     "albcap_peak_detect": _peak_detect,
     "albcap_filter_detect": _filter_detect,
-    "albcap_link": lambda: _load("device", "Link"),
-    "albcap_frame_packetizer": lambda: _load("frame", "FramePacketizer"),
-    "albcap_top": lambda: _load("top", "Top"),  # pipeline and link; the pipeline is inside
+    "albcap_link": lambda **p: _load("device", "Link", **p),
+    "albcap_frame_packetizer": lambda **p: _load("frame", "FramePacketizer", **p),
+    "albcap_top": lambda **p: _load("top", "Top", **p),  # pipeline and link; the pipeline is inside
 }

@@ -122,7 +122,8 @@ def flatten(shape, prefix: str = "", offset: int = 0) -> list[FlatField]:
     """The leaves of a shape-castable, in bit order, for packing beats in testbenches.
 
     A plain shape gives one leaf named ``prefix`` (``"value"`` at the top). Nested structs give
-    dotted paths, e.g. ``codes.l``.
+    dotted paths, e.g. ``codes.l``; array layouts (the lanes of a multi-lane stream) give one
+    path per element, e.g. ``x.0``, ``x.1``.
     """
     if isinstance(shape, data.StructLayout):
         out = []
@@ -130,7 +131,14 @@ def flatten(shape, prefix: str = "", offset: int = 0) -> list[FlatField]:
             path = f"{prefix}.{name}" if prefix else name
             out += flatten(fld.shape, path, offset + fld.offset)
         return out
+    if isinstance(shape, data.ArrayLayout):
+        # lanes of a multi-lane stream: ``x.0``, ``x.1``, ... (lane 0 in the low bits)
+        out = []
+        for i in range(shape.length):
+            path = f"{prefix}.{i}" if prefix else str(i)
+            out += flatten(shape.elem_shape, path, offset + i * shape.size // shape.length)
+        return out
     if isinstance(shape, data.Layout):
-        raise TypeError(f"only struct layouts can be flattened, not {shape!r}")
+        raise TypeError(f"only struct and array layouts can be flattened, not {shape!r}")
     s = Shape.cast(shape)
     return [FlatField(prefix or "value", offset, s.width, s.signed)]

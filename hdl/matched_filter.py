@@ -33,6 +33,8 @@ __all__ = [
     "TAG_WIDTH",
     "MatchedFilter",
     "RegisteredMultiplier",
+    "filter_in_layout",
+    "filter_out_layout",
     "frame_tags",
 ]
 
@@ -64,6 +66,46 @@ FILTER_OUT = data.StructLayout({
     "first": unsigned(1),
     "last": unsigned(1),
 })
+
+
+
+def _count_shape(lanes: int):
+    return unsigned(max(lanes.bit_length(), 1))
+
+
+def filter_in_layout(lanes: int = 1) -> data.StructLayout:
+    """The filter's input beat at ``lanes`` samples per clock.
+
+    One lane is :data:`FILTER_IN`. For ``lanes > 1``: ``x`` (an array of ``lanes`` s16, lane 0
+    the earliest sample), ``count`` (samples in the beat, ``1..lanes``, in lanes ``0..count-1``),
+    ``first``/``last`` (the beat holds the frame's first / last sample). A frame's first sample
+    is always in lane 0 and only its last beat may be partial, so a frame of ``N`` samples is
+    ``ceil(N / lanes)`` beats (:func:`model.vectors.lane_words` packs them).
+    """
+    if lanes < 1:
+        raise ValueError(f"lanes must be at least 1, not {lanes!r}")
+    if lanes == 1:
+        return FILTER_IN
+    return data.StructLayout({"x": data.ArrayLayout(STITCHED, lanes),
+                              "count": _count_shape(lanes),
+                              "first": unsigned(1), "last": unsigned(1)})
+
+
+def filter_out_layout(lanes: int = 1) -> data.StructLayout:
+    """The filter's output beat (and the detector's input) at ``lanes`` samples per clock.
+
+    One lane is :data:`FILTER_OUT`. For ``lanes > 1``: ``y`` (s24) and ``k`` arrays of
+    ``lanes``, with ``count``, ``first``, ``last`` as :func:`filter_in_layout`.
+    """
+    if lanes < 1:
+        raise ValueError(f"lanes must be at least 1, not {lanes!r}")
+    if lanes == 1:
+        return FILTER_OUT
+    return data.StructLayout({"y": data.ArrayLayout(signed(OUT_WIDTH), lanes),
+                              "k": data.ArrayLayout(_K_SHAPE, lanes),
+                              "count": _count_shape(lanes),
+                              "first": unsigned(1), "last": unsigned(1)})
+
 
 #: Surface message from the detector: sample ``n`` of the frame tagged ``tag``.
 SURFACE = data.StructLayout({"n": unsigned(N_WIDTH), "tag": unsigned(TAG_WIDTH)})

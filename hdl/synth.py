@@ -72,9 +72,9 @@ def _extra_components() -> dict:
     if util.find_spec(f"{__package__}.pipeline") is None:
         return {}
 
-    def pipeline():
+    def pipeline(**params):
         from .pipeline import Pipeline
-        return Pipeline()
+        return Pipeline(**params)
 
     return {"albcap_pipeline": pipeline}
 
@@ -86,7 +86,7 @@ def synth_components() -> dict:
 
 
 def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
-               work_dir=None) -> dict:
+               work_dir=None, params: dict | None = None) -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -101,6 +101,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         ``lanes`` attribute, else 1).
     work_dir : path, optional
         Where the intermediate files go (default: a temporary directory, removed after).
+    params : dict, optional
+        Constructor keywords of the component (e.g. ``{"lanes": 8, "taps_max": 16}``);
+        default its production parameters.
 
     Returns
     -------
@@ -119,7 +122,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         wd.mkdir(parents=True, exist_ok=True)
         # The ECP5 "platform" lets components pick ECP5 primitives where Yosys infers worse
         # (hdl.matched_filter.RegisteredMultiplier: the DSP blocks' own registers).
-        component = components[name]()
+        component = components[name](**(params or {}))
         if lanes is None:
             lanes = getattr(component, "lanes", 1)
         (wd / f"{name}.v").write_text(verilog.convert(component, name=name, emit_src=False,
@@ -143,18 +146,20 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "dsps": util.get("MULT18X18D", 0),
         "brams": util.get("DP16KD", 0),
         "lanes": lanes,
+        "params": dict(params or {}),
         "samples_per_s": round(lanes * f * 1e6),
         "target_mhz": target_mhz,
         "seconds": round(time.perf_counter() - t0, 1),
     }
 
 
-def synth_all(names=None, target_mhz: float = 200.0) -> dict:
+def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None) -> dict:
     """:func:`synthesize` every component (and the pipeline, when it exists); returns
-    ``{"device": ..., "components": {...}}``."""
+    ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
+    component named, so give them with one component at a time."""
     names = sorted(synth_components()) if not names else list(names)
     return {"device": DEVICE,
-            "components": {n: synthesize(n, target_mhz) for n in names}}
+            "components": {n: synthesize(n, target_mhz, params=params) for n in names}}
 
 
 def _short(name: str) -> str:

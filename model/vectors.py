@@ -25,7 +25,56 @@ from .peak_detect import peak_detect
 from .registers import Config
 from .stitch import stitch_config
 
-__all__ = ["STAGES", "stage_vectors", "write_vectors"]
+__all__ = ["STAGES", "lane_samples", "lane_words", "stage_vectors", "write_vectors"]
+
+def lane_words(frames, lanes: int) -> dict[str, np.ndarray]:
+    """Frames of per-sample values packed ``lanes`` samples per beat, as a multi-lane stream.
+
+    Parameters
+    ----------
+    frames : list of ndarray, each of shape (N_f,) or (N_f, ...)
+        One array per frame (``N_f >= 1`` samples).
+    lanes : int
+        Samples per beat.
+
+    Returns
+    -------
+    dict
+        ``values`` (beats, lanes, ...) int64 with unused lanes 0; ``count`` (beats,) samples in
+        each beat; ``first``/``last`` (beats,) 0/1. A frame's first sample is in lane 0 of its
+        first beat and only its last beat may be partial (``hdl.matched_filter.filter_in_layout``).
+    """
+    if lanes < 1:
+        raise ValueError(f"lanes must be at least 1, not {lanes!r}")
+    values, count, first, last = [], [], [], []
+    for i, f in enumerate(frames):
+        f = np.asarray(f, dtype=np.int64)
+        if f.shape[0] < 1:
+            raise ValueError(f"frame {i} is empty; every frame needs at least one sample")
+        beats = -(-f.shape[0] // lanes)
+        pad = np.zeros((beats * lanes, *f.shape[1:]), dtype=np.int64)
+        pad[:f.shape[0]] = f
+        values.append(pad.reshape((beats, lanes, *f.shape[1:])))
+        c = np.full(beats, lanes, dtype=np.int64)
+        c[-1] = f.shape[0] - (beats - 1) * lanes
+        count.append(c)
+        first.append(np.eye(1, beats, 0, dtype=np.int64)[0])
+        last.append(np.eye(1, beats, beats - 1, dtype=np.int64)[0])
+    return {"values": np.concatenate(values), "count": np.concatenate(count),
+            "first": np.concatenate(first), "last": np.concatenate(last)}
+
+
+def lane_samples(values, count) -> np.ndarray:
+    """The samples of a multi-lane stream in order: lanes ``0..count-1`` of each beat.
+
+    ``values`` (beats, lanes, ...) and ``count`` (beats,), as :func:`lane_words` gives them;
+    returns (samples, ...) int64.
+    """
+    values = np.asarray(values, dtype=np.int64)
+    count = np.asarray(count, dtype=np.int64)
+    keep = np.arange(values.shape[1])[None, :] < count[:, None]
+    return values[keep]
+
 
 _EDGE_CODES = (0, 1, 7, 8, 9, 127, 128, 199, 200, 201, 254, 255)
 

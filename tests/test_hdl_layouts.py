@@ -115,3 +115,25 @@ class TestPattern:
     def test_bad_arguments(self, kwargs, message):
         with pytest.raises(ValueError, match=f"^{message}$"):
             Pattern(**kwargs)
+
+
+def test_lane_words_round_trip_and_flatten():
+    """Frames packed into lane beats come back in order; a frame starts at lane 0."""
+    from hdl.matched_filter import filter_in_layout, filter_out_layout
+    from model.vectors import lane_samples, lane_words
+
+    rng = np.random.default_rng(7)
+    frames = [rng.integers(-100, 100, n) for n in (1, 3, 4, 5, 8, 9)]
+    w = lane_words(frames, 4)
+    assert w["values"].shape == (sum(-(-len(f) // 4) for f in frames), 4)
+    assert list(w["count"][w["last"] == 1]) == [1, 3, 4, 1, 4, 1]
+    assert np.array_equal(lane_samples(w["values"], w["count"]), np.concatenate(frames))
+    assert [f.path for f in flatten(filter_in_layout(2))] == ["x.0", "x.1", "count", "first",
+                                                              "last"]
+    y0, y1 = flatten(filter_out_layout(2))[:2]
+    assert (y0.width, y0.signed, y1.offset - y0.offset) == (24, True, 24)
+    assert filter_in_layout(1) is not None and filter_out_layout(1).size < filter_out_layout(2).size
+    with pytest.raises(ValueError, match="empty"):
+        lane_words([np.arange(3), np.arange(0)], 2)
+    with pytest.raises(ValueError, match="lanes"):
+        filter_in_layout(0)
