@@ -27,6 +27,8 @@ from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH, Bank
 
 __all__ = [
     "BANK_FORMAT",
+    "CONFIDENT_K_THR_Q4",
+    "SURVEY_K_THR_Q4",
     "SURVEY_NOISE_LOG2",
     "SceneBank",
     "bank_from_templates",
@@ -38,6 +40,7 @@ __all__ = [
     "read_bank_hex",
     "save_bank_json",
     "scene_bank",
+    "survey_registers",
     "survey_scene",
     "write_bank_hex",
 ]
@@ -47,6 +50,30 @@ __all__ = [
 SURVEY_NOISE_LOG2 = 7
 #: Gate start before the surface echo that those windows need, with the filter's warm-up, s.
 SURVEY_PRE_SURFACE_S = 200e-9
+#: Detection threshold of a survey, ``k_thr_q4`` (1/16): a peak must stand 6.5 mean absolute
+#: deviations of the filtered noise above the baseline. Measured on seed 000's scene
+#: (``docs/methods.md``): it detects the unstretched bottom at 30 m in 56 % of the shots
+#: (8.0 gives 30 %) at 0.3 % false bottoms on water without one.
+SURVEY_K_THR_Q4 = 104
+#: A depth is *confident* when both its peaks stand this factor (10.0) of the noise above the
+#: baseline, ``amplitude > max(min_thr, (160 * noise) >> 4)``; the others are *weak*: reported,
+#: flagged, and held to no error bound (``model.depth.confident_peaks``). Measured on seed 000's
+#: scene at ``SURVEY_K_THR_Q4``: the false bottoms of 1000 shots without one stood 6.6, 6.9 and
+#: 9.0 x noise (the amplitude counts from the lead-in baseline, so the water column's return
+#: lifts it; the detector's own rise test does not reach the records), true ones at 26 m 13 to
+#: 20 x (5th percentile, median).
+CONFIDENT_K_THR_Q4 = 160
+
+
+def survey_registers(sb, stitch_mode: int = 1, bottom_rule: int = 2) -> dict:
+    """The registers a survey runs a :class:`SceneBank` with (``albcap config --bank``).
+
+    ``stitch_mode`` 1 (``linear``) or 0 (``paper``); ``bottom_rule`` 2 (largest rise). The
+    threshold is :data:`SURVEY_K_THR_Q4` over noise windows of ``2**SURVEY_NOISE_LOG2``.
+    """
+    return {"stitch_mode": stitch_mode, "out_shift": sb.out_shift, "bin_offset": sb.bin_offset,
+            "bin_len": sb.bin_len, "min_thr": sb.min_thr, "noise_log2": SURVEY_NOISE_LOG2,
+            "k_thr_q4": SURVEY_K_THR_Q4, "bottom_rule": bottom_rule}
 
 
 def survey_scene(scene):

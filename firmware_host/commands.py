@@ -41,7 +41,13 @@ def _bank_registers(meta: dict, path) -> dict[str, int]:
 def _cmd_coeffs(args) -> int:
     from model.registers import Config
 
-    from .coeffs import SURVEY_NOISE_LOG2, save_bank_json, scene_bank, write_bank_hex
+    from .coeffs import (
+        CONFIDENT_K_THR_Q4,
+        save_bank_json,
+        scene_bank,
+        survey_registers,
+        write_bank_hex,
+    )
     from .emulator import load_scene_arg
     from .walk import calibrate_walk
 
@@ -52,10 +58,8 @@ def _cmd_coeffs(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     sb = scene_bank(scene, n_templates=args.templates, n_taps=args.taps)
     # The registers the bank was made and calibrated for; `albcap config --bank` applies them.
-    regs = {"stitch_mode": 1, "out_shift": sb.out_shift, "bin_offset": sb.bin_offset,
-            "bin_len": sb.bin_len, "min_thr": sb.min_thr, "noise_log2": SURVEY_NOISE_LOG2,
-            "bottom_rule": 2}
-    meta = {}
+    regs = survey_registers(sb)
+    meta = {"confident_q4": CONFIDENT_K_THR_Q4}
     if args.walk_shots:
         walk = calibrate_walk(scene, sb.bank, Config(**regs), shots=args.walk_shots)
         meta["walk_samples"] = walk.tolist()
@@ -142,7 +146,7 @@ def _cmd_capture(args) -> int:
 
 
 def _cmd_depth(args) -> int:
-    from model.depth import depth_from_peaks
+    from model.depth import confident_peaks, depth_from_peaks
 
     from .capture import peak_table, read_capture
     from .coeffs import load_bank_json
@@ -166,12 +170,24 @@ def _cmd_depth(args) -> int:
                            pk["found"][:, 1], pk["position_q8"][:, 1], pk["template"][:, 1],
                            ref_offsets=bank.ref_offsets, n_taps=bank.L, dt_s=scene.dt_s,
                            incidence_deg=scene.incidence_deg, n_water=scene.n_water, walk=walk)
+    # weak depths: detected at the survey's threshold, not at the bank's confidence factor
+    conf_q4 = meta.get("confident_q4")
+    if conf_q4 is None:
+        sure = dep.valid
+    else:
+        min_thr = int(meta.get("registers", {}).get("min_thr", 0))
+        sure = dep.valid & confident_peaks(pk["amplitude"][:, 0], pk["amplitude"][:, 1],
+                                           pk["noise"][:, 0], min_thr=min_thr,
+                                           confident_q4=int(conf_q4))
     d = dep.depth_m[dep.valid]
     if args.csv:
-        np.savetxt(args.csv, np.column_stack([np.arange(len(frames)), dep.valid, dep.depth_m]),
-                   fmt=["%d", "%d", "%.4f"], delimiter=",", header="frame,valid,depth_m")
+        np.savetxt(args.csv, np.column_stack([np.arange(len(frames)), dep.valid, sure,
+                                              dep.depth_m]),
+                   fmt=["%d", "%d", "%d", "%.4f"], delimiter=",",
+                   header="frame,valid,confident,depth_m")
     if d.size:
-        print(f"{len(frames)} frames, {d.size} depths: mean {d.mean():.3f} m, std "
+        print(f"{len(frames)} frames, {d.size} depths ({int(sure.sum())} confident, "
+              f"{d.size - int(sure.sum())} weak): mean {d.mean():.3f} m, std "
               f"{d.std():.3f} m, median {np.median(d):.3f} m (scene {args.scene}: "
               f"{scene.depth_m:.2f} m)")
     else:

@@ -81,7 +81,7 @@ def bench_cosim(frames: int = 20, prf_clocks: int = 1000, seconds: float = 5.0,
     """
     import numpy as np
 
-    from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
+    from firmware_host.coeffs import scene_bank, survey_registers, survey_scene
     from hdl.frame import BYTE
     from hdl.matched_filter import COEF_WRITE
     from hdl.pipeline import ADC_IN, Pipeline
@@ -96,8 +96,7 @@ def bench_cosim(frames: int = 20, prf_clocks: int = 1000, seconds: float = 5.0,
     scene = survey_scene(preset("seed000"))
     src = SceneSource(scene, seed=1, pool=16)
     sb = scene_bank(scene, n_templates=8, n_taps=64)
-    cfg = Config(gate_len=src.n_samples, noise_log2=SURVEY_NOISE_LOG2, out_shift=sb.out_shift,
-                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, min_thr=sb.min_thr)
+    cfg = Config(gate_len=src.n_samples, **survey_registers(sb))
     k, j = np.meshgrid(np.arange(sb.bank.K), np.arange(sb.bank.L), indexing="ij")
     coefs = {"addr": (k * L_MAX + j).ravel(), "data": sb.bank.coefs.astype(np.int64).ravel()}
     design = Design(Pipeline)

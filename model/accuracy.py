@@ -164,7 +164,7 @@ def chunk_seed(sweep_name: str, base_seed: int, point_index: int, chunk: int) ->
     return int(ss.generate_state(1, np.uint32)[0] >> 1)
 
 
-def depth_stats(truth_m, depth_m, detected, bound_m: float) -> dict:
+def depth_stats(truth_m, depth_m, detected, bound_m: float, confident=None) -> dict:
     """Bias, spread and detection of one method at one point.
 
     Parameters
@@ -176,6 +176,8 @@ def depth_stats(truth_m, depth_m, detected, bound_m: float) -> dict:
     detected : array_like bool (n,)
     bound_m : float
         The method's stated error bound [m].
+    confident : array_like bool (n,), optional
+        The detections the method stands behind (``Estimate.confident``; default: all).
 
     Returns
     -------
@@ -184,12 +186,15 @@ def depth_stats(truth_m, depth_m, detected, bound_m: float) -> dict:
         (sample standard deviation, ``ddof=1``), ``rmse_m``, each over the detected shots with
         a bottom (``None`` where there are none; ``std_m`` needs two), ``n_wrong`` (detected
         farther than ``bound_m`` from the truth, or detected without a bottom), ``n_ok``
-        (detected within the bound: a *successful extraction*).
+        (detected within the bound: a *successful extraction*), ``n_weak`` (detected, not
+        confident) and ``n_wrong_confident`` (the wrong ones among the confident: the
+        stability suite's *confident wrong depths*).
     """
     truth = np.asarray(truth_m, dtype=np.float64)
     est = np.asarray(depth_m, dtype=np.float64)
     det = np.asarray(detected, dtype=bool)
-    if not truth.shape == est.shape == det.shape or truth.ndim != 1:
+    sure = det if confident is None else np.asarray(confident, dtype=bool) & det
+    if not truth.shape == est.shape == det.shape == sure.shape or truth.ndim != 1:
         raise ValueError(f"truth_m, depth_m and detected must have one shape (n,), not "
                          f"{truth.shape}, {est.shape}, {det.shape}")
     has_b = np.isfinite(truth)
@@ -205,6 +210,8 @@ def depth_stats(truth_m, depth_m, detected, bound_m: float) -> dict:
         "rmse_m": float(np.sqrt(np.mean(err ** 2))) if err.size else None,
         "n_wrong": int(bad.sum()),
         "n_ok": int((det & ~bad).sum()),
+        "n_weak": int((det & ~sure).sum()),
+        "n_wrong_confident": int((bad & sure).sum()),
     }
 
 
@@ -253,7 +260,8 @@ def run_chunk(point: Point, n: int, seed: int, specs: tuple) -> dict:
     Returns
     -------
     dict
-        name -> ``{"truth", "depth", "detected"}`` (float64, float64, bool arrays (n,)),
+        name -> ``{"truth", "depth", "detected", "confident"}`` (float64, float64, bool,
+        bool arrays (n,)),
         ``"seconds"`` (``estimate`` time [s]), ``"nan"`` (shots whose answer held a NaN),
         ``"bad_zero"`` (not detected but depth not 0.0) and ``"error"`` (``None`` or the
         exception's text).
@@ -292,7 +300,7 @@ def _run_one(spec: MethodSpec, shots) -> dict:
     truth = np.asarray(shots.truth_depth_m, dtype=np.float64)
     k = truth.size
     res = {"truth": truth, "depth": np.zeros(k), "detected": np.zeros(k, bool),
-           "seconds": 0.0, "nan": 0, "bad_zero": 0, "error": None}
+           "confident": np.zeros(k, bool), "seconds": 0.0, "nan": 0, "bad_zero": 0, "error": None}
     try:
         m = _prepared(spec, shots)
         t0 = time.perf_counter()
@@ -310,6 +318,7 @@ def _run_one(spec: MethodSpec, shots) -> dict:
     res["bad_zero"] = int(np.sum(~det & (depth != 0.0)))
     res["depth"] = np.where(nan, 0.0, depth)
     res["detected"] = det & ~nan  # a NaN depth never counts as an answer
+    res["confident"] = res["detected"] & np.asarray(est.confident, dtype=bool)
     return res
 
 
@@ -418,8 +427,10 @@ def run_sweeps(sweeps, scheduler=None, progress: bool = True) -> dict:
 
 
 def _merge(parts, spec) -> dict:
-    cat = {k: np.concatenate([p[k] for p in parts]) for k in ("truth", "depth", "detected")}
-    stats = depth_stats(cat["truth"], cat["depth"], cat["detected"], spec.cls.error_bound_m)
+    cat = {k: np.concatenate([p[k] for p in parts])
+           for k in ("truth", "depth", "detected", "confident")}
+    stats = depth_stats(cat["truth"], cat["depth"], cat["detected"], spec.cls.error_bound_m,
+                        cat["confident"])
     us = [p["seconds"] / p["truth"].size * 1e6 for p in parts
           if p["error"] is None and p["truth"].size]
     timed = [p for p in parts if p["error"] is None]
@@ -448,7 +459,8 @@ N_MAX_FULL = {"gpg_lm": 100, "weibull_eemd": 20, "richardson_lucy": 250}
 N_MAX_QUICK = {"gpg_lm": 20, "weibull_eemd": 5}
 #: Depth range of the summary figures, as seed 000 Table 4 [m].
 SUMMARY_RANGE_M = (1.0, 26.0)
-#: A depth counts as reached when at least this share of its shots is detected.
+#: A depth counts as reached when at least this share of its shots gives a successful extraction
+#: (a depth within the method's error bound: a wrong or weak-and-wrong detection does not count).
 REACH_RATE = 0.5
 #: Figures to beat (seed 000 Table 4, seed 001 Table 4).
 PAPERS = {
@@ -481,7 +493,8 @@ def summarize(rows: list, depths, lo_hi=SUMMARY_RANGE_M) -> dict:
     ``bias_m`` and ``std_m`` are the means of the per-depth figures (seed 000 Table 4 gives
     the overall bias and spread over its depths so), ``abs_bias_m`` the mean of ``|bias|``
     (no cancelling between depths), ``rmse_m`` and ``detection_rate`` pooled over all shots,
-    ``max_depth_m`` the deepest depth of the whole sweep detected at ``REACH_RATE`` or more.
+    ``max_depth_m`` the deepest depth of the whole sweep with successful extractions
+    (``n_ok / n``) at ``REACH_RATE`` or more, ``n_weak`` the weak detections.
     """
     sel = [(d, r) for d, r in zip(depths, rows, strict=True) if lo_hi[0] <= d <= lo_hi[1]]
     with_b = [r for _d, r in sel if r["bias_m"] is not None]
@@ -489,7 +502,8 @@ def summarize(rows: list, depths, lo_hi=SUMMARY_RANGE_M) -> dict:
     n = sum(r["n"] for _d, r in sel)
     n_det = sum(r["n_detected"] for _d, r in sel)
     sq = sum(r["rmse_m"] ** 2 * r["n_detected"] for r in with_b)
-    reached = [d for d, r in zip(depths, rows, strict=True) if r["detection_rate"] >= REACH_RATE]
+    reached = [d for d, r in zip(depths, rows, strict=True)
+               if r["n"] and r["n_ok"] / r["n"] >= REACH_RATE]
     return {
         "depth_range_m": list(lo_hi),
         "bias_m": _r(np.mean([r["bias_m"] for r in with_b])) if with_b else None,
@@ -500,6 +514,8 @@ def summarize(rows: list, depths, lo_hi=SUMMARY_RANGE_M) -> dict:
         "detection_rate": _r(n_det / n) if n else None,
         "max_depth_m": max(reached) if reached else None,
         "n_wrong": sum(r["n_wrong"] for r in rows),
+        "n_wrong_confident": sum(r["n_wrong_confident"] for r in rows),
+        "n_weak": sum(r["n_weak"] for r in rows),
     }
 
 
@@ -524,7 +540,8 @@ def _method_json(spec: MethodSpec, points, rows: list, n: int) -> dict:
         per.append({"depth_m": pt.x, "n": s["n"], "n_detected": s["n_detected"],
                     "detection_rate": _r(s["detection_rate"]), "bias_m": _r(s["bias_m"]),
                     "std_m": _r(s["std_m"]), "rmse_m": _r(s["rmse_m"]), "n_ok": s["n_ok"],
-                    "n_wrong": s["n_wrong"], "nan": s["nan"]})
+                    "n_wrong": s["n_wrong"], "n_wrong_confident": s["n_wrong_confident"],
+                    "n_weak": s["n_weak"], "nan": s["nan"]})
     depths = [r["depth_m"] for r in per]
     return {"name": spec.name, "label": spec.cls.label or spec.cls.name,
             "bit_exact": bool(spec.cls.bit_exact), "photon": bool(spec.cls.photon),

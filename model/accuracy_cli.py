@@ -72,12 +72,13 @@ def _cmd_bench_accuracy(args) -> int:
         print(json.dumps(res, indent=1))
         return 0
     print(f"{'method':16s} {'us/wf':>8s} {'|bias| cm':>9s} {'std cm':>7s} {'RMSE cm':>8s} "
-          f"{'det 1-26':>8s} {'reach m':>7s} {'wrong':>6s}")
+          f"{'det 1-26':>8s} {'reach m':>7s} {'weak':>6s} {'wrong':>6s}")
     for m in res["methods"]:
         s = m["summary"]
         print(f"{m['name']:16s} {_f(m['us_per_waveform'], 1, 1):>8s} {_f(s['abs_bias_m']):>9s} "
               f"{_f(s['std_m']):>7s} {_f(s['rmse_m']):>8s} {_f(s['detection_rate'], 100, 1):>8s} "
-              f"{_f(s['max_depth_m'], 1, 0):>7s} {s['n_wrong']:>6d}")
+              f"{_f(s['max_depth_m'], 1, 0):>7s} {s['n_weak']:>6d} "
+              f"{s['n_wrong_confident']:>6d}")
     for t in res["targets"]:
         print(f"target {'met    ' if t['met'] else 'NOT met'}: {t['text']} "
               f"({t['method']}: {t['value']})")

@@ -276,8 +276,8 @@ def _us(x):
 
 def _summary_table(acc: dict) -> str:
     rows = ["| method | on-chip | shots/depth | us/waveform 1-26 m (all) | mean abs bias cm | "
-            "mean std cm | RMSE cm | detection % | reach m | confident wrong |",
-            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+            "mean std cm | RMSE cm | detection % | reach m | weak | confident wrong |",
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for m in acc["methods"]:
         s = m["summary"]
         reach = "-" if s["max_depth_m"] is None else f"{s['max_depth_m']:g}"
@@ -286,7 +286,7 @@ def _summary_table(acc: dict) -> str:
                     f"{m['n_per_depth']} | {_us(m['us_per_waveform'])} "
                     f"({_us(m['us_per_waveform_all'])}) | {_cm(s['abs_bias_m'])} | "
                     f"{_cm(s['std_m'], 2)} | {_cm(s['rmse_m'])} | {_pct(s['detection_rate'])} "
-                    f"| {reach} | {s['n_wrong']} |")
+                    f"| {reach} | {s['n_weak']} | {s['n_wrong_confident']} |")
     return "\n".join(rows)
 
 
@@ -386,7 +386,9 @@ def _regimes_table(reg: dict) -> str:
                 if q is None:
                     cells.append("n/a")
                     continue
-                w = f" ({q['wrong_rate'] * 100:.0f} wrong)" if q["wrong_rate"] else ""
+                cw, ww = q["confident_wrong_rate"], q["wrong_rate"] - q["confident_wrong_rate"]
+                w = (f" ({cw * 100:.0f} wrong)" if cw else "") + \
+                    (f" ({ww * 100:.0f} weak wrong)" if ww else "")
                 cells.append(f"{q['failure_rate'] * 100:.0f}{w}")
             out.append(f"| `{n}` | " + " | ".join(cells) + " |")
         out.append("")

@@ -40,7 +40,7 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
     ``walk``: correct the depths with the bank's range-walk table
     (``firmware_host.walk.calibrate_walk``, calibrated on shots seeded apart from the sweep).
     """
-    from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
+    from firmware_host.coeffs import scene_bank, survey_registers, survey_scene
     from firmware_host.walk import calibrate_walk
     from sim.scene import preset
     from sim.shots import make_shots
@@ -50,10 +50,8 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
         raise ValueError(f"--shots must be >= 1, not {shots!r}")
     x_range = (-800, 24700) if mode == "linear" else (0, 765)
     sb = scene_bank(scene, n_templates=1 if fixed else 8, n_taps=64, x_range=x_range)
-    cfg = Config(stitch_mode=1 if mode == "linear" else 0, out_shift=sb.out_shift,
-                 bin_offset=sb.bin_offset, bin_len=sb.bin_len, noise_log2=SURVEY_NOISE_LOG2,
-                 min_thr=sb.min_thr,
-                 bottom_rule=bottom_rule)
+    cfg = Config(**survey_registers(sb, stitch_mode=1 if mode == "linear" else 0,
+                                    bottom_rule=bottom_rule))
     # compile (or load) the filter-and-detector loop now, so that us/frame times the chain
     run_chain(np.zeros((1, 3, 64), np.uint8), sb.bank, cfg.replace(gate_len=64))
     table = calibrate_walk(scene, sb.bank, cfg) if walk else None

@@ -11,8 +11,10 @@ either a depth or a flagged non-detection. :func:`violations` lists every breach
 
 * no exception from ``estimate``;
 * no NaN in ``depth_m``, ``surface_s`` or ``bottom_s``; ``depth_m`` is 0.0 where not detected;
-* no *confident wrong depth*: a detection farther from the truth than ``Method.error_bound_m``,
-  or any detection where there is no bottom;
+* no *confident wrong depth*: a confident detection (``Estimate.confident``) farther from the
+  truth than ``Method.error_bound_m``, or any confident detection where there is no bottom
+  (weak detections are flagged by the method and counted, ``weak_rate``, but held to no
+  bound);
 * no hang: at most :data:`HANG_S_PER_WAVEFORM` seconds of ``estimate`` per shot.
 
 A failure to detect is not a violation; it is what the failure-rate curves
@@ -159,8 +161,8 @@ def violations(name: str, stats: dict, where: str) -> list[str]:
         out.append(f"{name} at {where}: {stats['nan']} NaN answers")
     if stats["bad_zero"]:
         out.append(f"{name} at {where}: {stats['bad_zero']} non-detections with depth != 0")
-    if stats["n_wrong"]:
-        out.append(f"{name} at {where}: {stats['n_wrong']} confident wrong depths")
+    if stats["n_wrong_confident"]:
+        out.append(f"{name} at {where}: {stats['n_wrong_confident']} confident wrong depths")
     us = stats["us_chunks"]
     if us and max(us) > HANG_S_PER_WAVEFORM * 1e6:
         out.append(f"{name} at {where}: {max(us) / 1e6:.1f} s per waveform (hang)")
@@ -196,6 +198,8 @@ def bench_regimes(specs, n: int = 100, quick: bool = False, scheduler=None,
                 fail = (1 - s["n_ok"] / s["n"]) if s["has_bottom"] else s["n_wrong"] / s["n"]
                 per[spec.name] = {"n": s["n"], "detection_rate": s["detection_rate"],
                                   "failure_rate": fail, "wrong_rate": s["n_wrong"] / s["n"],
+                                  "confident_wrong_rate": s["n_wrong_confident"] / s["n"],
+                                  "weak_rate": s["n_weak"] / s["n"],
                                   "rmse_m": s["rmse_m"], "errors": s["errors"]}
             pts.append({"value": pt.x, "depth_m": None if math.isnan(pt.depth_m)
                         else pt.depth_m, "methods": per})

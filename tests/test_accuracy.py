@@ -65,6 +65,17 @@ class TestDepthStats:
         s = depth_stats([3.0, 3.0], [3.1, 0.0], [True, False], bound_m=0.5)
         assert s["bias_m"] == pytest.approx(0.1) and s["std_m"] is None
 
+    def test_weak_detections_are_counted_apart(self):
+        """A weak wrong detection is wrong but not a confident wrong one; weak ones count."""
+        truth = np.array([10.0, 10.0, np.nan, 10.0])
+        est = np.array([10.1, 13.0, 5.0, 0.0])
+        det = np.array([True, True, True, False])
+        sure = np.array([True, False, False, True])  # the last: not detected, so not confident
+        s = depth_stats(truth, est, det, bound_m=0.5, confident=sure)
+        assert (s["n_wrong"], s["n_wrong_confident"], s["n_weak"], s["n_ok"]) == (2, 0, 2, 1)
+        s = depth_stats(truth, est, det, bound_m=0.5)
+        assert (s["n_wrong_confident"], s["n_weak"]) == (2, 0)
+
     def test_shapes_checked(self):
         with pytest.raises(ValueError, match=r"one shape \(n,\), not \(2,\), \(3,\), \(2,\)"):
             depth_stats([1.0, 2.0], [1.0, 2.0, 3.0], [True, True], 0.5)
@@ -74,7 +85,8 @@ def _row(d, bias, std, rate, n=100, wrong=0):
     det = round(rate * n)
     return {"depth_m": d, "n": n, "n_detected": det, "detection_rate": rate,
             "bias_m": bias if det else None, "std_m": std if det > 1 else None,
-            "rmse_m": math.hypot(bias, std) if det else None, "n_wrong": wrong, "n_ok": det}
+            "rmse_m": math.hypot(bias, std) if det else None, "n_wrong": wrong,
+            "n_ok": det - wrong, "n_wrong_confident": wrong, "n_weak": 0}
 
 
 def _method(name, rows, us, bit_exact=False):
@@ -96,6 +108,9 @@ class TestSummaryAndTargets:
         pooled = (100 * (0.01 ** 2 + 0.005 ** 2) + 98 * (0.03 ** 2 + 0.007 ** 2)) / 198
         assert s["rmse_m"] == pytest.approx(math.sqrt(pooled), abs=1e-6)
         assert s["max_depth_m"] == 30.0
+        # reach counts successful extractions: 60 detections of which 20 wrong is not reached
+        rows[2] = _row(30.0, 0.2, 0.1, 0.6, wrong=20)
+        assert summarize(rows, [1.0, 20.0, 30.0, 35.0])["max_depth_m"] == 20.0
 
     def test_targets(self):
         good = [_row(1.0, 0.01, 0.008, 1.0), _row(26.0, -0.01, 0.008, 0.995),
@@ -189,7 +204,8 @@ class TestRegimes:
             assert set(r.quick) <= set(r.values) and HARSH[r.name] in r.quick
 
     def test_violations_named(self):
-        s = {"errors": ["ValueError: x"], "nan": 2, "bad_zero": 1, "n_wrong": 3,
+        s = {"errors": ["ValueError: x"], "nan": 2, "bad_zero": 1, "n_wrong": 5,
+             "n_wrong_confident": 3,
              "us_chunks": [1.0, 6e6]}
         v = violations("m", s, "deep depth=30")
         assert v == ["m at deep depth=30: exception ValueError: x",

@@ -67,3 +67,17 @@ class TestBadInput:
     def test_dt(self):
         with pytest.raises(ValueError, match="dt_s must be a positive number of seconds, not 0"):
             one(0, 1, dt_s=0)
+
+
+def test_confident_peaks_is_the_threshold_rule_with_another_factor():
+    """amplitude > max(min_thr, (q4 * noise) >> 4) for both peaks, as the detector's test."""
+    from model.depth import confident_peaks
+
+    noise = np.array([100, 100, 100, 100, 0])
+    surf = np.array([801, 800, 5000, 5000, 31])
+    bot = np.array([5000, 5000, 800, 801, 31])
+    got = confident_peaks(surf, bot, noise, min_thr=30, confident_q4=128)
+    assert got.tolist() == [True, False, False, True, True]
+    assert not confident_peaks([30], [31], [0], min_thr=30, confident_q4=128)[0]
+    with pytest.raises(ValueError, match="confident_q4 must be an integer in 0..65535, not -1"):
+        confident_peaks([1], [1], [1], min_thr=0, confident_q4=-1)

@@ -201,3 +201,49 @@ class TestChainStitch:
         with pytest.raises(ValueError, match=re.escape("stitch must be 'linear' or 'paper', "
                                                        "not 'eq1'")):
             get_method("fixed_mf")(stitch="eq1")
+
+
+def test_survey_threshold_trade(scene):
+    """The survey threshold (6.5 x noise) reaches deeper than seed 000's 8; no confident depth
+    is wrong, at the bottom's limit or on water without a bottom.
+
+    A 200-shot twin of the measurement in ``docs/methods.md`` (seed 000's scene without pulse
+    stretching, the bottom at 30 m, and water without a bottom).
+    """
+    import dataclasses
+
+    from model.accuracy import depth_stats
+
+    flat = dataclasses.replace(scene, fidelity_tolerance_m=10.0, max_depth_m=40.0)
+    deep, empty = make_shots(flat, 30.0, 200, seed=1003), make_shots(flat, np.nan, 200, seed=1006)
+    rates = {}
+    for q4 in (104, 128):
+        m = get_method("fixed_mf")(k_thr_q4=q4)
+        m.prepare(setup_for(flat))
+        e = m.estimate(deep)
+        s = depth_stats(np.full(200, 30.0), e.depth_m, e.detected, m.error_bound_m, e.confident)
+        assert s["n_wrong_confident"] == 0
+        rates[q4] = s["n_ok"] / 200
+        e0 = m.estimate(empty)
+        assert not e0.confident.any() and e0.detected.sum() <= 2
+    assert rates[104] >= 0.5 > rates[128]
+
+
+def test_float_weak_pass(scene):
+    """Float peak detection's second pass (5.5 sigma) adds only weak answers: the confident
+    ones are exactly those of seed 000's single 8-sigma threshold."""
+    import dataclasses
+
+    flat = dataclasses.replace(scene, fidelity_tolerance_m=10.0, max_depth_m=40.0)
+    shots = make_shots(flat, np.array([29.0] * 60 + [np.nan] * 60), 120, seed=1011)
+    two = get_method("peaks_float")()
+    one = get_method("peaks_float")()
+    one.k_weak = None
+    for m in (one, two):
+        m.prepare(setup_for(flat))
+    e1, e2 = one.estimate(shots), two.estimate(shots)
+    assert np.array_equal(e1.detected, e1.confident)
+    assert np.array_equal(e2.confident, e1.detected)
+    assert np.array_equal(e2.depth_m[e2.confident], e1.depth_m[e1.detected])
+    weak = e2.detected & ~e2.confident
+    assert weak[:60].sum() > 0 and not e2.confident[60:].any()

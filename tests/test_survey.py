@@ -12,9 +12,10 @@ class TestSurvey:
         for step in ("coeffs", "emulate", "config", "load", "capture", "status", "depth"):
             assert f"$ albcap {step}" in out
         assert "lost 0 (shot counter), device dropped 0" in out
-        m = re.search(r"40 frames, (\d+) depths: mean ([\d.]+) m", out)
-        assert m and int(m.group(1)) == 40
-        assert abs(float(m.group(2)) - 10.0) < 0.2  # seed000 preset: 10 m
+        m = re.search(r"40 frames, (\d+) depths \((\d+) confident, (\d+) weak\): mean ([\d.]+) m",
+                      out)
+        assert m and int(m.group(1)) == 40 and int(m.group(2)) == 40  # 10 m: all confident
+        assert abs(float(m.group(4)) - 10.0) < 0.2  # seed000 preset: 10 m
         assert (tmp_path / "run.h5").exists() and (tmp_path / "run.h5.raw").stat().st_size > 0
 
     def test_bad_frame_count(self, capsys):

@@ -2,12 +2,15 @@
 
 Shared by ``fixed_mf`` (one template, the received pulse) and ``adaptive_mf`` (seed 001's
 depth-adaptive bank). The recipe is ``model.demo.demo_rows``: a bank from
-``firmware_host.coeffs.scene_bank`` with 64 taps, the ``linear`` stitch, the survey's noise
-windows (``SURVEY_NOISE_LOG2``), threshold floor from the bank, bottom rule 2 (largest rise),
-then ``model.depth.depth_from_peaks`` with the bank's reference offsets and its range-walk
-table (``firmware_host.walk.calibrate_walk``: shots at random depths of the survey's scene,
-seeded apart from every evaluation, through the same chain; what ``albcap coeffs`` stores in a
-bank file and ``albcap depth`` applies).
+``firmware_host.coeffs.scene_bank`` with 64 taps, the ``linear`` stitch and the survey's
+registers (``firmware_host.coeffs.survey_registers``: noise windows of 128 samples, the
+threshold floor from the bank, the threshold factor ``SURVEY_K_THR_Q4`` = 6.5, bottom rule 2,
+largest rise), then ``model.depth.depth_from_peaks`` with the bank's reference offsets and its
+range-walk table (``firmware_host.walk.calibrate_walk``: shots at random depths of the survey's
+scene, seeded apart from every evaluation, through the same chain; what ``albcap coeffs``
+stores in a bank file and ``albcap depth`` applies). A depth whose peaks do not both stand 10
+x noise above the baseline (``CONFIDENT_K_THR_Q4``) is *weak* (``Estimate.confident`` False;
+``model.depth.confident_peaks``).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from model.chain import run_chain
-from model.depth import depth_from_peaks, event_time_s, walk_correction
+from model.depth import confident_peaks, depth_from_peaks, event_time_s, walk_correction
 from model.registers import Config
 
 from ._common import check_adc_shots, not_detected, stitch_cfg
@@ -36,6 +39,8 @@ class ChainMethod(Method):
     stitch : {"linear", "paper"}
         The stitch register's rule (``model.stitch``); ``paper`` (seed 000 eq. 1) uses the
         filter's output shift for its 0..765 range, as ``model.demo.demo_rows`` does.
+    k_thr_q4 : int, optional
+        The detector's threshold factor (1/16); default the survey's ``SURVEY_K_THR_Q4``.
     walk : bool
         Correct the depths with the bank's range-walk table (default), as ``albcap depth``
         does with a bank file from ``albcap coeffs``; False gives the raw depths.
@@ -44,28 +49,31 @@ class ChainMethod(Method):
     bit_exact = True
     n_templates = 1
 
-    def __init__(self, stitch: str = "linear", walk: bool = True):
+    def __init__(self, stitch: str = "linear", walk: bool = True, k_thr_q4: int | None = None):
         if stitch not in ("linear", "paper"):
             raise ValueError(f"stitch must be 'linear' or 'paper', not {stitch!r}")
+        if k_thr_q4 is not None and not (isinstance(k_thr_q4, int) and 0 <= k_thr_q4 <= 4095):
+            raise ValueError(f"k_thr_q4 must be an integer in 0..4095, not {k_thr_q4!r}")
         self.stitch = stitch
         self.walk = walk
+        self.k_thr_q4 = k_thr_q4
         self._sb = None
         self._cfg = None
         self._walk = None
 
     def prepare(self, setup: Setup) -> None:
         """Build the bank and the registers for the setup's scene (and compile the kernel)."""
-        from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank
+        from firmware_host.coeffs import CONFIDENT_K_THR_Q4, scene_bank, survey_registers
         from firmware_host.walk import calibrate_walk
 
+        self._confident_q4 = CONFIDENT_K_THR_Q4
         linear = self.stitch == "linear"
         sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=N_TAPS,
                         x_range=X_RANGE if linear else (0, 765))
-        base = _stitch_registers(setup)
-        self._cfg = Config(stitch_mode=1 if linear else 0, out_shift=sb.out_shift,
-                           bin_offset=sb.bin_offset, bin_len=sb.bin_len,
-                           noise_log2=SURVEY_NOISE_LOG2, min_thr=sb.min_thr, bottom_rule=2,
-                           **base)
+        self._cfg = Config(**survey_registers(sb, stitch_mode=1 if linear else 0),
+                           **_stitch_registers(setup))
+        if self.k_thr_q4 is not None:
+            self._cfg = self._cfg.replace(k_thr_q4=self.k_thr_q4)
         self._sb = sb
         # compile (or load) the filter-and-detector loop here, so estimate() times the chain only
         run_chain(np.zeros((1, 3, N_TAPS), np.uint8), sb.bank, self._cfg.replace(gate_len=N_TAPS))
@@ -94,6 +102,8 @@ class ChainMethod(Method):
                                dt_s=st.dt_s, incidence_deg=st.incidence_deg, n_water=st.n_water,
                                walk=self._walk)
         ok = dep.valid & np.isfinite(dep.depth_m) & (dep.depth_m > 0)
+        sure = confident_peaks(p.surface.amplitude, p.bottom.amplitude, p.noise,
+                               min_thr=cfg.min_thr, confident_q4=self._confident_q4)
         ts = event_time_s(p.surface.position_q8, p.surface.template, self._sb.bank.ref_offsets,
                           self._sb.bank.L, st.dt_s)
         tb = event_time_s(p.bottom.position_q8, p.bottom.template, self._sb.bank.ref_offsets,
@@ -101,7 +111,8 @@ class ChainMethod(Method):
         if self._walk is not None:
             tb = tb + walk_correction((tb - ts) / st.dt_s, p.bottom.template, self._walk) * st.dt_s
         return Estimate(depth_m=np.where(ok, dep.depth_m, 0.0), detected=ok,
-                        surface_s=np.where(ok, ts, 0.0), bottom_s=np.where(ok, tb, 0.0))
+                        surface_s=np.where(ok, ts, 0.0), bottom_s=np.where(ok, tb, 0.0),
+                        confident=ok & sure)
 
 
 def _stitch_registers(setup: Setup) -> dict:

@@ -136,13 +136,15 @@ def depth_scale(setup: Setup) -> float:
 
 
 def finish(setup: Setup, surface_s, bottom_s, ok, *, gate_s: float,
-           min_sep_s: float = MIN_SEP_S, table=None) -> Estimate:
+           min_sep_s: float = MIN_SEP_S, table=None, weak=None) -> Estimate:
     """Depths from event times with the checks every method shares.
 
     A shot is detected when ``ok`` and both times are finite, inside the gate
     ``[0, gate_s]``, and the bottom follows the surface by at least ``min_sep_s``. The depth is
     ``(c0 / n) (t_b - t_s) / 2 cos(theta_w)`` (``model.depth``), then corrected by ``table``
     (a :class:`DepthTable`) when given. Undetected shots get 0.0 everywhere (never NaN).
+    ``weak`` (bool (n,), optional) marks answers the method does not stand behind
+    (``Estimate.confident`` False).
     """
     ts = np.asarray(surface_s, dtype=np.float64)
     tb = np.asarray(bottom_s, dtype=np.float64)
@@ -155,8 +157,10 @@ def finish(setup: Setup, surface_s, bottom_s, ok, *, gate_s: float,
         depth, in_range = table.apply(depth)
         good &= in_range
     good &= np.isfinite(depth) & (depth > 0)
+    sure = good if weak is None else good & ~np.asarray(weak, dtype=bool)
     return Estimate(depth_m=np.where(good, depth, 0.0), detected=good,
-                    surface_s=np.where(good, ts, 0.0), bottom_s=np.where(good, tb, 0.0))
+                    surface_s=np.where(good, ts, 0.0), bottom_s=np.where(good, tb, 0.0),
+                    confident=sure)
 
 
 class DepthTable:

@@ -94,12 +94,17 @@ class Estimate:
         Both the surface and the bottom were found and the depth passed the method's checks.
     surface_s, bottom_s : ndarray float64 (n,)
         Event times [s from the first gate sample]; 0.0 where not found (never NaN).
+    confident : ndarray bool (n,), optional
+        The detections the method stands behind (its ``error_bound_m`` applies to them); the
+        others are *weak* (``detected`` but not ``confident``: reported and flagged, held to no
+        bound). Default: every detection.
     """
 
     depth_m: np.ndarray
     detected: np.ndarray
     surface_s: np.ndarray
     bottom_s: np.ndarray
+    confident: np.ndarray | None = None
 
     def __post_init__(self):
         n = np.asarray(self.detected).shape
@@ -109,6 +114,13 @@ class Estimate:
                 raise ValueError(f"{name} must have shape {n}, not {v.shape}")
             setattr(self, name, v)
         self.detected = np.asarray(self.detected, dtype=bool)
+        if self.confident is None:
+            self.confident = self.detected.copy()
+        else:
+            c = np.asarray(self.confident, dtype=bool)
+            if c.shape != n:
+                raise ValueError(f"confident must have shape {n}, not {c.shape}")
+            self.confident = c & self.detected  # only a detection can be confident
 
 
 class Method:

@@ -61,18 +61,24 @@ class PeaksFloat(Method):
     bit-exact. Assumptions: the first 40 ns of the gate hold no echo; the scene given to
     :meth:`prepare` has the survey's water and instrument (the table is made from it).
 
+    Weak answers: shots without a bottom at 8 sigma are tried again at ``k_weak = 5.5`` sigma
+    (the three smoothings again); those answers are *weak* (``Estimate.confident`` False:
+    reported, flagged, held to no bound; 2.4 % of shots on water without a bottom give one).
+
     Failure modes: deep, weak bottoms (seed 000 water: the spread grows from 1 cm at 17 m to
-    3-6 cm at 20-22 m, and bottoms beyond about 23 m stay under the 8-sigma threshold and are
-    flagged); merged echoes in very shallow water (under about 1 m). Flags: no peak; bottom not
-    6 ns after the surface; times outside the gate; depth outside the table's range; the water
-    check. The methods built on this one (``threshold``, ``gpg_lm``, ``weibull_eemd``,
-    ``richardson_lucy``) inherit the detection, the table and the checks.
+    3-6 cm at 20-22 m, and bottoms beyond about 23 m stay under the 8-sigma threshold: weak
+    answers or flagged); merged echoes in very shallow water (under about 1 m). Flags: no
+    peak; bottom not 6 ns after the surface; times outside the gate; depth outside the table's
+    range; the water check. The methods built on this one (``threshold``, ``gpg_lm``,
+    ``weibull_eemd``, ``richardson_lucy``) inherit the detection, the table and the checks.
     """
 
     name = "peaks_float"
     label = "float peak detection"
     error_bound_m = 0.5
     k_noise = 8.0
+    #: threshold of the second, *weak* pass (noise deviations); ``None``: no weak answers
+    k_weak = 5.5
     smooth_factor = 2.0
     #: largest relative difference of the water column's decay rate from the survey's
     column_tol = 0.25
@@ -105,14 +111,16 @@ class PeaksFloat(Method):
         return column_decay(y, surface_s / fw.dt_s, bottom_s / fw.dt_s,
                             round(4 * fwhm + 3 * self._pulse), round(2 * fwhm + 3 * self._pulse))
 
-    def _pick(self, y: np.ndarray, fw: FloatWave, sigma: float) -> dict:
+    def _pick(self, y: np.ndarray, fw: FloatWave, sigma: float, k: float | None = None) -> dict:
         """Seed 000's rule on ``y`` (smoothed by ``sigma`` samples): ``estimate_depths`` with the
         largest peak as surface and the latest as bottom; a peak is the largest sample within
-        ``sigma`` and must stand out over the ``4 sigma`` before it and everything after it."""
+        ``sigma`` and must stand out over the ``4 sigma`` before it and everything after it,
+        by ``k`` noise deviations (default ``k_noise``)."""
         # smoothing lowers the noise: the floor scales with it so a flat lead-in stays flat
         floor = NOISE_FLOOR_LSB / math.sqrt(2 * math.sqrt(math.pi) * sigma)
         # only the times are used: the depth is made (and checked) by ``_common.finish``
-        return estimate_depths(y, fw.dt_s, 1.33, 0.0, k_noise=self.k_noise,
+        return estimate_depths(y, fw.dt_s, 1.33, 0.0,
+                               k_noise=self.k_noise if k is None else k,
                                noise_samples=fw.n0, noise_floor=floor, min_sep_s=MIN_SEP_S,
                                bottom_rule="last", surface_rule="largest",
                                peak_halfwidth=max(1, round(sigma)),
@@ -122,31 +130,38 @@ class PeaksFloat(Method):
         """Picks at several smoothings, per shot the widest one that finds a bottom.
 
         Returns ``(y, r, sigma)``: per row the waveform at the smoothing used, the picks
-        (``estimate_depths``'s dict) and that smoothing's standard deviation, samples. The
-        widest (``smooth_factor`` pulse sigmas) reaches deeper, weaker bottoms; the narrower
-        ones (one and 0.4 pulse sigma) still separate the two returns in shallow water, where
-        a wider one merges them (below about 2 m and 1.3 m).
+        (``estimate_depths``'s dict, plus ``weak``) and that smoothing's standard deviation,
+        samples. The widest (``smooth_factor`` pulse sigmas) reaches deeper, weaker bottoms;
+        the narrower ones (one and 0.4 pulse sigma) still separate the two returns in shallow
+        water, where a wider one merges them (below about 2 m and 1.3 m). Rows that none of
+        them reads at ``k_noise`` go through the three again with ``k_weak``; what that finds is
+        marked ``weak`` (every other answer is exactly the one-threshold answer).
         """
         raw = fw.y
         n = raw.shape[0]
         y = np.zeros_like(raw)
         used = np.zeros(n)
         r = None
-        for sigma in (self._sigma, self._pulse, 0.4 * self._pulse):
-            rows = ~(used > 0)
-            if not rows.any():
-                break
-            ys = gaussian_filter1d(raw[rows], sigma, axis=1, mode="nearest")
-            rs = self._pick(ys, fw, sigma)
-            if r is None:
-                r = {k: np.zeros(n, dtype=v.dtype) for k, v in rs.items()}
-            # rows not found at this scale keep trying; the last scale's answer stands
-            take = rs["detected"] | (sigma == 0.4 * self._pulse)
-            idx = np.flatnonzero(rows)[take]
-            for k in r:
-                r[k][idx] = rs[k][take]
-            y[idx] = ys[take]
-            used[idx] = sigma
+        scales = (self._sigma, self._pulse, 0.4 * self._pulse)
+        passes = (self.k_noise,) if self.k_weak is None else (self.k_noise, self.k_weak)
+        for k in passes:
+            for sigma in scales:
+                rows = ~r["detected"] if r is not None else np.ones(n, dtype=bool)
+                if not rows.any():
+                    break
+                ys = gaussian_filter1d(raw[rows], sigma, axis=1, mode="nearest")
+                rs = self._pick(ys, fw, sigma, k=k)
+                if r is None:
+                    r = {key: np.zeros(n, dtype=v.dtype) for key, v in rs.items()}
+                    r["weak"] = np.zeros(n, dtype=bool)
+                # rows not found at this scale keep trying; the last answer stands
+                take = rs["detected"] | ((sigma == scales[-1]) & (k == passes[-1]))
+                idx = np.flatnonzero(rows)[take]
+                for key in rs:
+                    r[key][idx] = rs[key][take]
+                r["weak"][idx] = rs["detected"][take] & (k != self.k_noise)
+                y[idx] = ys[take]
+                used[idx] = sigma
         self._last = (y, r, fw.dt_s)
         return y, r, used
 
@@ -171,4 +186,4 @@ class PeaksFloat(Method):
             with np.errstate(invalid="ignore"):
                 ok = ok & ~(np.abs(ratio - 1.0) > self.column_tol)
         return finish(shots.setup, ts, tb, ok, gate_s=fw.y.shape[1] * fw.dt_s,
-                      table=self._table)
+                      table=self._table, weak=self._last[1]["weak"])

@@ -119,4 +119,5 @@ class RichardsonLucy(PeaksFloat):
         ok = est.detected & ref.detected & (np.abs(est.depth_m - ref.depth_m) <= self.agree_m)
         return Estimate(depth_m=np.where(ok, est.depth_m, 0.0), detected=ok,
                         surface_s=np.where(ok, est.surface_s, 0.0),
-                        bottom_s=np.where(ok, est.bottom_s, 0.0))
+                        bottom_s=np.where(ok, est.bottom_s, 0.0),
+                        confident=ok & est.confident & ref.confident)
