@@ -76,6 +76,10 @@ def _synth(args) -> int:
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
     res = synth_all(args.component, args.freq, params or None)
+    if args.out is not None:
+        from .synth import record_figures
+
+        record_figures(args.out, res)
     if args.json:
         print(json.dumps(res, indent=1))
     else:
@@ -106,6 +110,9 @@ def register(subparsers) -> None:
     syn.add_argument("--component", action="append", choices=sorted(synth_components()),
                      help="only this component (repeatable; default all)")
     syn.add_argument("--freq", type=float, default=200.0, help="clock constraint, MHz")
+    syn.add_argument("--out", type=Path, default=None,
+                     help="also merge the figures into this JSON file (e.g. "
+                          "docs/figures/fpga.json, which the accuracy study reads)")
     syn.add_argument("--param", action="append", metavar="NAME=VALUE",
                      help="constructor keyword of the one --component, e.g. lanes=8 "
                           "(repeatable)")

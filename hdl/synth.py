@@ -23,7 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["DEVICE", "ECP5_SYNTH", "synth_all", "synth_components", "synthesize"]
+__all__ = ["DEVICE", "ECP5_SYNTH", "figure_key", "record_figures", "synth_all", "synth_components",
+           "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
@@ -160,6 +161,36 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None)
     names = sorted(synth_components()) if not names else list(names)
     return {"device": DEVICE,
             "components": {n: synthesize(n, target_mhz, params=params) for n in names}}
+
+
+def figure_key(name: str, params: dict | None = None) -> str:
+    """The key of one measured configuration: ``albcap_filter_detect[lanes=4,taps_max=32]``."""
+    if not params:
+        return name
+    return f"{name}[{','.join(f'{k}={v}' for k, v in sorted(params.items()))}]"
+
+
+def record_figures(path, res: dict) -> dict:
+    """Merge a :func:`synth_all` result into the JSON file ``path`` (``docs/figures/fpga.json``).
+
+    Figures are kept per configuration (:func:`figure_key`), so runs of one component at a time
+    accumulate; a configuration measured again replaces its old figures. The file is written
+    whole through a temporary name, so an interrupted run never leaves half a file. Returns the
+    merged content.
+    """
+    path = Path(path)
+    old = json.loads(path.read_text()) if path.exists() else {}
+    if old and old.get("device") != res["device"]:
+        raise ValueError(f"{path} holds figures for {old.get('device')}, not {res['device']}")
+    figures = dict(old.get("figures", {}))
+    for name, r in res["components"].items():
+        figures[figure_key(name, r.get("params"))] = {"component": name, **r}
+    merged = {"format": "albcap-fpga-1", "device": res["device"],
+              "figures": dict(sorted(figures.items()))}
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(merged, indent=1) + "\n")
+    tmp.replace(path)
+    return merged
 
 
 def _short(name: str) -> str:

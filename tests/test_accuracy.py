@@ -294,3 +294,33 @@ class TestCli:
         assert set(row) >= {"depth_m", "bias_m", "std_m", "rmse_m", "detection_rate"}
         assert printed["variants"]["stitch_paper"]["methods"][0]["stitch"] == "paper"
         assert isinstance(m["us_per_waveform"], float)
+
+
+def test_onchip_fpga_time_picks_the_fastest_fitting_join():
+    """The on-chip time per waveform comes from the measured join whose taps_max holds the
+    bank; the speed target uses it, and says so, when there is one."""
+    from model.accuracy import onchip_fpga_time, targets
+
+    figs = {"figures": {
+        "albcap_filter_detect": {"component": "albcap_filter_detect", "fmax_mhz": 90.0,
+                                 "lanes": 1, "samples_per_s": 90e6, "params": {}},
+        "albcap_filter_detect[lanes=8,taps_max=16]": {
+            "component": "albcap_filter_detect", "fmax_mhz": 130.0, "lanes": 8,
+            "samples_per_s": 1.04e9, "params": {"lanes": 8, "taps_max": 16}},
+        "albcap_filter_detect[lanes=2,taps_max=64]": {
+            "component": "albcap_filter_detect", "fmax_mhz": 150.0, "lanes": 2,
+            "samples_per_s": 3e8, "frame_gap_clocks": 6, "params": {"lanes": 2, "taps_max": 64}},
+        "albcap_stitch": {"component": "albcap_stitch", "fmax_mhz": 228.0, "lanes": 1,
+                          "samples_per_s": 2.28e8}}}
+    t = onchip_fpga_time(1191, 64, figs)
+    assert t["key"] == "albcap_filter_detect[lanes=2,taps_max=64]"
+    assert t["clocks_per_waveform"] == 596 + 6 and t["us_per_waveform"] == pytest.approx(602 / 150, abs=1e-4)
+    assert onchip_fpga_time(1191, 16, figs)["lanes"] == 8
+    assert onchip_fpga_time(1191, 64, None) is None
+    chip = _method("adaptive_mf", [_row(1.0, 0.02, 0.01, 1.0)], 100.0, bit_exact=True)
+    ref = _method("offline", [_row(1.0, 0.01, 0.01, 1.0)], 1000.0)
+    row = {x["id"]: x for x in targets([chip, ref], t)["targets"]}["onchip_speed"]
+    assert row["value"] == pytest.approx(1000.0 / (602 / 150), rel=1e-3) and row["met"]
+    assert row["model_speedup"] == 10.0 and "FPGA: 2 lanes at 150 MHz" in row["text"]
+    row = {x["id"]: x for x in targets([chip, ref])["targets"]}["onchip_speed"]
+    assert row["value"] == 10.0 and not row["met"] and "no FPGA figure" in row["text"]

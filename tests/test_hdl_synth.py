@@ -5,7 +5,7 @@ import json
 import pytest
 
 from firmware_host.cli import main
-from hdl.synth import synthesize
+from hdl.synth import figure_key, record_figures, synthesize
 
 
 class TestSynth:
@@ -18,9 +18,13 @@ class TestSynth:
         assert abs(r["samples_per_s"] - r["fmax_mhz"] * 1e6) < 1e5  # one lane
         assert (tmp_path / "report.json").exists() and (tmp_path / "albcap_stitch.v").exists()
 
-    def test_command_json(self, capsys):
-        assert main(["hdl", "synth", "--json", "--component", "albcap_stitch"]) == 0
+    def test_command_json(self, capsys, tmp_path):
+        out = tmp_path / "fpga.json"
+        assert main(["hdl", "synth", "--json", "--component", "albcap_stitch",
+                     "--out", str(out)]) == 0
         res = json.loads(capsys.readouterr().out)
+        assert json.loads(out.read_text())["figures"]["albcap_stitch"]["fmax_mhz"] == \
+            res["components"]["albcap_stitch"]["fmax_mhz"]
         assert res["device"]["part"] == "LFE5U-85F"
         assert set(res["components"]) == {"albcap_stitch"}
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
@@ -29,3 +33,26 @@ class TestSynth:
     def test_unknown_component(self):
         with pytest.raises(ValueError, match="unknown component 'albcap_fft'"):
             synthesize("albcap_fft")
+
+    def test_param_errors(self, capsys):
+        for args, msg in ((["--param", "lanes"], "--param wants NAME=VALUE"),
+                          (["--param", "lanes=four"], "the value must be an integer, not 'four'"),
+                          (["--param", "lanes=4"], "--param needs exactly one --component")):
+            with pytest.raises(SystemExit, match=msg):
+                main(["hdl", "synth", *args])
+
+
+def test_record_figures_merges_per_configuration(tmp_path):
+    dev = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
+    path = tmp_path / "fpga.json"
+    fig = {"fmax_mhz": 100.0, "lanes": 1}
+    record_figures(path, {"device": dev, "components": {"a": {**fig, "params": {}}}})
+    record_figures(path, {"device": dev, "components": {
+        "a": {**fig, "fmax_mhz": 90.0, "params": {"lanes": 4, "taps_max": 32}}}})
+    got = json.loads(path.read_text())["figures"]
+    assert set(got) == {"a", "a[lanes=4,taps_max=32]"}
+    assert figure_key("a", {"taps_max": 32, "lanes": 4}) == "a[lanes=4,taps_max=32]"
+    assert got["a"]["fmax_mhz"] == 100.0 and got["a[lanes=4,taps_max=32]"]["fmax_mhz"] == 90.0
+    with pytest.raises(ValueError, match="holds figures for"):
+        record_figures(path, {"device": {**dev, "part": "LFE5U-25F"}, "components": {}})
+
