@@ -73,6 +73,8 @@ class TestDepthStats:
         sure = np.array([True, False, False, True])  # the last: not detected, so not confident
         s = depth_stats(truth, est, det, bound_m=0.5, confident=sure)
         assert (s["n_wrong"], s["n_wrong_confident"], s["n_weak"], s["n_ok"]) == (2, 0, 2, 1)
+        assert s["n_close"] == 1  # 10.1 (0.1 m off); 13.0 is 3 m off, the no-bottom one wrong
+        assert depth_stats([10.0], [10.6], [True], bound_m=3.0)["n_close"] == 0  # > 0.5 m
         s = depth_stats(truth, est, det, bound_m=0.5)
         assert (s["n_wrong_confident"], s["n_weak"]) == (2, 0)
 
@@ -86,7 +88,7 @@ def _row(d, bias, std, rate, n=100, wrong=0):
     return {"depth_m": d, "n": n, "n_detected": det, "detection_rate": rate,
             "bias_m": bias if det else None, "std_m": std if det > 1 else None,
             "rmse_m": math.hypot(bias, std) if det else None, "n_wrong": wrong,
-            "n_ok": det - wrong, "n_wrong_confident": wrong, "n_weak": 0}
+            "n_ok": det - wrong, "n_wrong_confident": wrong, "n_weak": 0, "n_close": det - wrong}
 
 
 def _method(name, rows, us, bit_exact=False):
@@ -314,7 +316,8 @@ def test_onchip_fpga_time_picks_the_fastest_fitting_join():
                           "samples_per_s": 2.28e8}}}
     t = onchip_fpga_time(1191, 64, figs)
     assert t["key"] == "albcap_filter_detect[lanes=2,taps_max=64]"
-    assert t["clocks_per_waveform"] == 596 + 6 and t["us_per_waveform"] == pytest.approx(602 / 150, abs=1e-4)
+    assert t["clocks_per_waveform"] == 596 + 6
+    assert t["us_per_waveform"] == pytest.approx(602 / 150, abs=1e-4)
     assert onchip_fpga_time(1191, 16, figs)["lanes"] == 8
     assert onchip_fpga_time(1191, 64, None) is None
     chip = _method("adaptive_mf", [_row(1.0, 0.02, 0.01, 1.0)], 100.0, bit_exact=True)
