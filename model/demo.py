@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from .chain import run_chain
-from .depth import depth_from_peaks
+from .depth import confident_peaks, depth_from_peaks
 from .gate import gate_events
 from .registers import Config
 
@@ -40,7 +40,12 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
     ``walk``: correct the depths with the bank's range-walk table
     (``firmware_host.walk.calibrate_walk``, calibrated on shots seeded apart from the sweep).
     """
-    from firmware_host.coeffs import scene_bank, survey_registers, survey_scene
+    from firmware_host.coeffs import (
+        CONFIDENT_K_THR_Q4,
+        scene_bank,
+        survey_registers,
+        survey_scene,
+    )
     from firmware_host.walk import calibrate_walk
     from sim.scene import preset
     from sim.shots import make_shots
@@ -74,9 +79,12 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
                                dt_s=dt_s, incidence_deg=batch.setup.incidence_deg,
                                n_water=batch.setup.n_water, walk=table)
         err = dep.depth_m[dep.valid] - d
+        sure = dep.valid & confident_peaks(p.surface.amplitude, p.bottom.amplitude, p.noise,
+                                           min_thr=cfg.min_thr, confident_q4=CONFIDENT_K_THR_Q4)
         rows.append({
             "depth_m": d,
             "detected": int(dep.valid.sum()),
+            "weak": int(dep.valid.sum() - sure.sum()),
             "shots": shots,
             "mean_m": float(np.mean(dep.depth_m[dep.valid])) if dep.valid.any() else math.nan,
             "bias_m": float(np.mean(err)) if err.size else math.nan,
@@ -96,14 +104,14 @@ def run_demo(args) -> int:
           f"{kind} matched filter, bottom rule {rule} (bit-exact model), "
           f"{'no range-walk correction' if args.no_walk else 'range-walk corrected on the host'}")
     print(f"{'true m':>8} {'measured m':>11} {'bias cm':>8} {'std cm':>7} {'detected':>9} "
-          f"{'us/frame':>9}")
+          f"{'weak':>6} {'us/frame':>9}")
     for r in demo_rows(args.preset, depths, args.shots, args.seed, args.mode, args.fixed,
                        args.bottom_rule, walk=not args.no_walk):
         if r["detected"]:
             print(f"{r['depth_m']:8.2f} {r['mean_m']:11.3f} {100 * r['bias_m']:8.1f} "
                   f"{100 * r['std_m']:7.1f} {r['detected'] / r['shots']:9.1%} "
-                  f"{r['us_per_frame']:9.1f}")
+                  f"{r['weak'] / r['shots']:6.0%} {r['us_per_frame']:9.1f}")
         else:
-            print(f"{r['depth_m']:8.2f} {'-':>11} {'-':>8} {'-':>7} {0:9.1%} "
+            print(f"{r['depth_m']:8.2f} {'-':>11} {'-':>8} {'-':>7} {0:9.1%} {0:6.0%} "
                   f"{r['us_per_frame']:9.1f}")
     return 0
