@@ -204,7 +204,7 @@ class TestChainStitch:
 
 
 def test_survey_threshold_trade(scene):
-    """The survey threshold (6.5 x noise) reaches deeper than seed 000's 8; no confident depth
+    """A survey threshold of 6.5 x noise reaches deeper than seed 000's 8; no confident depth
     is wrong, at the bottom's limit or on water without a bottom.
 
     A 200-shot twin of the measurement in ``docs/methods.md`` (seed 000's scene without pulse

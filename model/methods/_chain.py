@@ -4,7 +4,7 @@ Shared by ``fixed_mf`` (one template, the received pulse) and ``adaptive_mf`` (s
 depth-adaptive bank). The recipe is ``model.demo.demo_rows``: a bank from
 ``firmware_host.coeffs.scene_bank`` with 64 taps, the ``linear`` stitch and the survey's
 registers (``firmware_host.coeffs.survey_registers``: noise windows of 128 samples, the
-threshold floor from the bank, the threshold factor ``SURVEY_K_THR_Q4`` = 6.5, bottom rule 2,
+threshold floor from the bank, the threshold factor ``SURVEY_K_THR_Q4`` = 8, bottom rule 2,
 largest rise), then ``model.depth.depth_from_peaks`` with the bank's reference offsets and its
 range-walk table (``firmware_host.walk.calibrate_walk``: shots at random depths of the survey's
 scene, seeded apart from every evaluation, through the same chain; what ``albcap coeffs``
