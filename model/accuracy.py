@@ -565,7 +565,7 @@ FPGA_FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures" / "fp
 ONCHIP_COMPONENT = "albcap_filter_detect"
 
 
-def onchip_fpga_time(n_samples: int, taps: int, figures: dict | None) -> dict | None:
+def onchip_fpga_time(n_samples: float, taps: int, figures: dict | None) -> dict | None:
     """The on-chip path's time per waveform on the FPGA, from measured synthesis figures.
 
     Among the measured configurations of :data:`ONCHIP_COMPONENT` whose ``taps_max`` holds the
@@ -593,7 +593,7 @@ def onchip_fpga_time(n_samples: int, taps: int, figures: dict | None) -> dict | 
         return None
     key, f = best
     lanes = int(f.get("lanes", 1))
-    clocks = -(-int(n_samples) // lanes) + int(f.get("frame_gap_clocks", 0))
+    clocks = math.ceil(n_samples / lanes) + int(f.get("frame_gap_clocks", 0))
     return {"us_per_waveform": _r(clocks / f["fmax_mhz"], 4), "key": key, "lanes": lanes,
             "fmax_mhz": f["fmax_mhz"], "clocks_per_waveform": clocks}
 
@@ -756,17 +756,26 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
                            "000's Wa-LiD simulator; methods prepared for that scene",
             "methods": ms}
     from model.methods._chain import N_TAPS
-    from sim.shots import make_shots
 
     res = {"format": "albcap-accuracy-1", "quick": quick, "seed": seed,
            "scene": "seed000 preset, survey gate (firmware_host.coeffs.survey_scene)",
            "depths_m": [float(d) for d in depths], "n_per_depth": n,
            "n_per_depth_variants": side_n, "chunk": CHUNK, "methods_run": chosen,
            "methods_missing": [m for m in ISSUE_METHODS if m not in known],
-           "samples_per_waveform": int(make_shots(base, depths[0], 1, seed).adc.shape[-1]),
+           "samples_per_waveform_mean": mean_samples(base, depths),
            "onchip_taps": N_TAPS, "elapsed_s": round(elapsed, 1), "methods": methods,
            "variants": variants, "papers": PAPERS}
     return score(res)
+
+
+def mean_samples(scene, depths, lo_hi=SUMMARY_RANGE_M) -> float:
+    """Mean gate length [samples] of the shots at the depths within ``lo_hi`` [m]: the gate
+    ends after the bottom (``sim.shots``), so it grows with depth; the times per waveform are
+    averaged over the same depths."""
+    from sim.shots import make_shots
+
+    sel = [d for d in depths if lo_hi[0] <= d <= lo_hi[1]] or list(depths)
+    return float(np.mean([make_shots(scene, float(d), 1, 0).adc.shape[-1] for d in sel]))
 
 
 def score(res: dict, figures: dict | None = None) -> dict:
@@ -775,8 +784,11 @@ def score(res: dict, figures: dict | None = None) -> dict:
     :data:`FPGA_FIGURES`, if any). ``albcap chart`` calls it too, so the page shows the
     latest FPGA figures."""
     figures = load_fpga_figures() if figures is None else figures
-    fpga = onchip_fpga_time(res.get("samples_per_waveform", 0), res.get("onchip_taps", 64),
-                            figures) if res.get("samples_per_waveform") else None
+    n = res.get("samples_per_waveform_mean")
+    if n is None and figures:  # a JSON from before the field: the same computation
+        n = mean_samples(dataclasses.replace(survey_base(), max_depth_m=max(
+            40.0, max(res["depths_m"]))), res["depths_m"])
+    fpga = onchip_fpga_time(n, res.get("onchip_taps", 64), figures) if n else None
     out = {**res, **targets(res["methods"], fpga)}
     uns = res.get("variants", {}).get("unstretched")
     if uns:
