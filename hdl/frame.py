@@ -190,20 +190,30 @@ class FramePacketizer(wiring.Component):
             for t in FrameType:
                 with m.Case(t):
                     m.d.comb += ibytes.eq(item_bytes(t))
-        # length x item size by shifts and at most one add (item sizes 3, 2, 4, 16): a multiply
-        # here went through a DSP block and was the pipeline's critical path (21.7 ns).
-        payload = Signal(_PKT_LEN)
+        # Frame bytes = header + length x item size, by shifts and adds (item sizes 3, 2, 4, 16):
+        # a multiply here went through a DSP block and was the pipeline's critical path
+        # (21.7 ns). A samples frame's size depends on the header only, so it is registered
+        # every clock from the latched header (`body_samples`, settled long before the frame
+        # ends); a peaks frame's is 16 + 16 x (0, 1 or 2) records. `body` picks one of the two
+        # at the SIZE edge, a mux in front of a register (the adds in that clock were the
+        # critical path at 94 MHz).
+        body_samples = Signal(_PKT_LEN)
         with m.Switch(ftype):
             for t in FrameType:
                 b = item_bytes(t)
                 with m.Case(t):
-                    if b & (b - 1) == 0:
-                        m.d.comb += payload.eq(length << (b.bit_length() - 1))
+                    if t == FrameType.PEAKS:
+                        m.d.sync += body_samples.eq(0)  # not used: body_peaks
+                    elif b & (b - 1) == 0:
+                        m.d.sync += body_samples.eq(_HDR + (hdr.length << (b.bit_length() - 1)))
                     else:
                         assert b == 3, "item sizes are 2, 3, 4 and 16 bytes"
-                        m.d.comb += payload.eq((length << 1) + length)
+                        m.d.sync += body_samples.eq(_HDR + (hdr.length << 1) + hdr.length)
+        body_peaks = Signal(_PKT_LEN)
+        m.d.comb += body_peaks.eq(_HDR + (count << 4))
+        assert _REC == 16, "a peak record is 16 bytes (count << 4)"
         body = Signal(_PKT_LEN)  # frame bytes: header + payload (registered for the compare)
-        m.d.sync += body.eq(_HDR + payload)
+        m.d.sync += body.eq(Mux(is_peaks, body_peaks, body_samples))
         size = Signal(range(1 << (_PKT_LEN + 1)))
         m.d.comb += size.eq(body + PACKET_HEADER.size + CRC_BYTES)
         fin = Signal(FRAME_HEADER_LAYOUT)  # the header as sent
