@@ -25,7 +25,7 @@ from model.peak_detect import NOISE_MAX
 from model.registers import by_name
 
 from .layouts import config_signature, struct_layout
-from .matched_filter import FILTER_OUT, N_WIDTH, SURFACE, TAG_WIDTH
+from .matched_filter import N_WIDTH, SURFACE, TAG_WIDTH, filter_out_layout
 
 __all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "RESULT_LATENCY", "SURFACE_LATENCY",
            "THR_WIDTH", "PeakDetect"]
@@ -57,17 +57,90 @@ _Y = signed(OUT_WIDTH)
 _KEY = signed(OUT_WIDTH + 2)  # y (rule 1) or a rise y - vmin (rule 2)
 
 
+def record_layout(k_shape) -> data.StructLayout:
+    """A peak held by the decision: ``found``, its sample ``n``, ``a, b, c = y[n-1..n+1]``
+    and its template ``k``."""
+    return data.StructLayout({"found": 1, "n": N_WIDTH, "a": _Y, "b": _Y, "c": _Y, "k": k_shape})
+
+
+def divider_layout(k_shape) -> data.StructLayout:
+    """One peak in the sub-sample divider: what the record needs plus remainder, shifted
+    divisor and quotient bits."""
+    return data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": k_shape,
+                              "rem": unsigned(OUT_WIDTH + 12),
+                              "dsh": unsigned(OUT_WIDTH + 12),
+                              "q": unsigned(DIVIDE_STEPS)})
+
+
+def load_divider(m, fins, recs, long):
+    """Load the divider registers ``fins`` (surface, bottom) from the records ``recs``.
+
+    ``N' = 512 (b - a) + den`` and ``D = 2 den`` shifted up by ``DIVIDE_STEPS - 1``; ``long``
+    (the frame reached ``W + 2P + 2`` samples) gates ``found``.
+    """
+    for fin, r in zip(fins, recs, strict=True):
+        den = 2 * r.b - r.a - r.c
+        m.d.sync += [
+            fin.found.eq(r.found & long), fin.n.eq(r.n), fin.b.eq(r.b),
+            fin.k.eq(r.k), fin.q.eq(0),
+            fin.rem.eq(512 * (r.b - r.a) + den),
+            fin.dsh.eq((2 * den) << (DIVIDE_STEPS - 1)),
+        ]
+
+
+def divide(m, fins, run, step, done, o_valid):
+    """One restoring step per clock while ``run``; at ``step == 0`` raise ``done``/``o_valid``."""
+    with m.If(run):
+        with m.If(step == 0):
+            m.d.sync += [run.eq(0), done.eq(1), o_valid.eq(1)]
+        with m.Else():
+            m.d.sync += step.eq(step - 1)
+            for fin in fins:
+                ge = fin.rem >= fin.dsh
+                m.d.sync += [
+                    fin.rem.eq(Mux(ge, fin.rem - fin.dsh, fin.rem)),
+                    fin.q.eq((fin.q << 1) | ge),
+                    fin.dsh.eq(fin.dsh >> 1),
+                ]
+
+
+def drive_result(m, o, fin_mu, fin_noise, fin_thr, fins):
+    """The ``PEAK_RESULT`` payload ``o`` from the frame's statistics and divided peaks."""
+    m.d.comb += [o.mu.eq(fin_mu), o.noise.eq(fin_noise), o.thr.eq(fin_thr)]
+    lo, hi = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
+    for out, fin, kind in ((o.surface, fins[0], PeakKind.SURFACE),
+                           (o.bottom, fins[1], PeakKind.BOTTOM)):
+        amp = fin.b - fin_mu
+        with m.If(fin.found):
+            m.d.comb += [
+                out.kind.eq(int(kind)),
+                out.template.eq(fin.k),
+                out.position_q8.eq((fin.n << 8) + fin.q - 128),
+                out.amplitude.eq(Mux(amp < lo, lo, Mux(amp > hi, hi, amp))),
+                out.noise.eq(fin_noise),
+            ]
+
+
 class PeakDetect(wiring.Component):
-    """Noise level, surface and bottom of each frame of filter output, one sample per clock.
+    """Noise level, surface and bottom of each frame of filter output, ``lanes`` samples per clock.
 
     Bit-exact to :func:`model.peak_detect.peak_detect` with ``templates`` the ``k`` of each
-    input sample, for every bottom rule.
+    input sample, for every bottom rule, at any ``lanes``.
+
+    Parameters
+    ----------
+    lanes : int
+        Samples per clock, at least 1. One lane is the design described below; ``lanes > 1``
+        is built by :mod:`hdl._peak_lanes` (same ports apart from ``i``'s payload, same result
+        and messages; its latencies and the threshold bubble are given there and as the
+        attributes below).
 
     Attributes
     ----------
-    i : In(stream.Signature(FILTER_OUT))
-        ``y`` (s24), its template ``k`` and the frame markers. A frame starts with ``first`` and
-        ends with ``last`` (a frame's state is cleared after its last sample).
+    i : In(stream.Signature(filter_out_layout(lanes)))
+        ``y`` (s24), its template ``k`` and the frame markers (one lane: ``FILTER_OUT``; more:
+        arrays of ``lanes`` samples with ``count``). A frame starts with ``first`` and ends with
+        ``last`` (a frame's state is cleared after its last sample).
     o : Out(stream.Signature(PEAK_RESULT))
         One beat per frame, in frame order: ``mu``, ``noise``, ``thr`` and the surface and
         bottom records. A frame shorter than ``W + 2P + 2`` reports ``mu = noise = 0``,
@@ -80,6 +153,15 @@ class PeakDetect(wiring.Component):
         ``noise_log2``, ``k_thr_q4``, ``min_thr``, ``min_sep``, ``bottom_rule``.
     taps : In(unsigned(7))
         ``L`` of the bank (``W = L - 1``), init ``L_MAX``.
+    lanes : int
+        Samples per clock (read by :mod:`hdl.synth` for ``samples_per_s``).
+    surface_latency, result_latency : int
+        Clocks from accepting the beat holding ``y[s + 1]`` to the surface message, and from
+        accepting a frame's last beat to its result beat, when that beat does not wait (one
+        lane: :data:`SURFACE_LATENCY` = 2, :data:`RESULT_LATENCY` = 14).
+    threshold_bubble : int
+        Most clocks a frame's first beat reaching ``W + 2P + 1`` waits for the threshold with
+        ``i.ready`` low (0 at one lane, where the decision reads it in time).
 
     Notes
     -----
@@ -96,9 +178,20 @@ class PeakDetect(wiring.Component):
     frame give a mix of old and new rules: write them between frames.
     """
 
-    def __init__(self):
+    def __init__(self, lanes: int = 1):
+        if not isinstance(lanes, int) or isinstance(lanes, bool) or lanes < 1:
+            self._MustUse__silence = True  # refused, so never meant to be used (as Gate)
+            raise ValueError(f"lanes must be an integer of at least 1, not {lanes!r}")
+        self.lanes = lanes
+        if lanes == 1:
+            self.surface_latency, self.result_latency = SURFACE_LATENCY, RESULT_LATENCY
+            self.threshold_bubble = 0
+        else:
+            from ._peak_lanes import latencies
+            self.surface_latency, self.result_latency, self.threshold_bubble = \
+                latencies(lanes)
         super().__init__({
-            "i": In(stream.Signature(FILTER_OUT)),
+            "i": In(stream.Signature(filter_out_layout(lanes))),
             "o": Out(stream.Signature(PEAK_RESULT)),
             "surface": Out(stream.Signature(SURFACE)),
             "cfg": In(config_signature("peak")),
@@ -106,6 +199,9 @@ class PeakDetect(wiring.Component):
         })
 
     def elaborate(self, platform):
+        if self.lanes > 1:
+            from ._peak_lanes import elaborate
+            return elaborate(self, platform)
         m = Module()
         cfg, d = self.cfg, self.i.payload
         accept = Signal()
@@ -120,8 +216,7 @@ class PeakDetect(wiring.Component):
         thr = Signal(THR_WIDTH)
         y1, y2 = Signal(_Y), Signal(_Y)  # y[n-1], y[n-2]
         k1, k2 = Signal.like(d.k), Signal.like(d.k)
-        rec = data.StructLayout({"found": 1, "n": N_WIDTH, "a": _Y, "b": _Y, "c": _Y,
-                                 "k": d.k.shape()})
+        rec = record_layout(d.k.shape())
         srec, brec = Signal(rec), Signal(rec)
         best = Signal(_KEY)
         vmin = Signal(_Y)
@@ -238,10 +333,7 @@ class PeakDetect(wiring.Component):
         ]
 
         fin_mu, fin_noise, fin_thr = Signal(_Y), Signal(NOISE_WIDTH), Signal(THR_WIDTH)
-        div = data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": d.k.shape(),
-                                 "rem": unsigned(OUT_WIDTH + 12),
-                                 "dsh": unsigned(OUT_WIDTH + 12),
-                                 "q": unsigned(DIVIDE_STEPS)})
+        div = divider_layout(d.k.shape())
         fins = [Signal(div, name="fin_s"), Signal(div, name="fin_b")]
         end_long, end_valid = Signal(), Signal()
         step = Signal(range(DIVIDE_STEPS + 1))
@@ -285,41 +377,8 @@ class PeakDetect(wiring.Component):
         with m.If(end_valid):
             m.d.sync += [run.eq(1), step.eq(DIVIDE_STEPS),
                          srec.found.eq(0), brec.found.eq(0), best.eq(0), vmin.eq(0)]
-            for fin, r in zip(fins, (srec, brec), strict=True):
-                den = 2 * r.b - r.a - r.c
-                m.d.sync += [
-                    fin.found.eq(r.found & end_long), fin.n.eq(r.n), fin.b.eq(r.b),
-                    fin.k.eq(r.k), fin.q.eq(0),
-                    fin.rem.eq(512 * (r.b - r.a) + den),
-                    fin.dsh.eq((2 * den) << (DIVIDE_STEPS - 1)),
-                ]
+            load_divider(m, fins, (srec, brec), end_long)
 
-        # ---- the divider: one restoring step per clock ----
-        with m.If(run):
-            with m.If(step == 0):
-                m.d.sync += [run.eq(0), done.eq(1), self.o.valid.eq(1)]
-            with m.Else():
-                m.d.sync += step.eq(step - 1)
-                for fin in fins:
-                    ge = fin.rem >= fin.dsh
-                    m.d.sync += [
-                        fin.rem.eq(Mux(ge, fin.rem - fin.dsh, fin.rem)),
-                        fin.q.eq((fin.q << 1) | ge),
-                        fin.dsh.eq(fin.dsh >> 1),
-                    ]
-
-        o = self.o.payload
-        m.d.comb += [o.mu.eq(fin_mu), o.noise.eq(fin_noise), o.thr.eq(fin_thr)]
-        lo, hi = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
-        for out, fin, kind in ((o.surface, fins[0], PeakKind.SURFACE),
-                               (o.bottom, fins[1], PeakKind.BOTTOM)):
-            amp = fin.b - fin_mu
-            with m.If(fin.found):
-                m.d.comb += [
-                    out.kind.eq(int(kind)),
-                    out.template.eq(fin.k),
-                    out.position_q8.eq((fin.n << 8) + fin.q - 128),
-                    out.amplitude.eq(Mux(amp < lo, lo, Mux(amp > hi, hi, amp))),
-                    out.noise.eq(fin_noise),
-                ]
+        divide(m, fins, run, step, done, self.o.valid)
+        drive_result(m, self.o.payload, fin_mu, fin_noise, fin_thr, fins)
         return m

@@ -1,0 +1,263 @@
+"""hdl.peak_detect.PeakDetect(lanes > 1) against model.peak_detect.peak_detect.
+
+The one-lane bench's vectors (echo-like frames, edge frames, seeded random frames, five register
+sets) plus frames aimed at the lanes: peaks at every lane position (alternating samples, in both
+phases, rising, falling and equal heights, so several candidates share a beat and the surface
+and bottom can sit in one beat), plateaus of two and three samples and template switches next
+to a peak at every lane position, so across beat boundaries, every partial last beat around the
+length limits ``W + 2P + 1`` and ``W + 2P + 2``, peaks at ``thr`` and ``thr + 1`` (and rises at
+``thr``, ``thr + 1`` for rule 2), and a noise window at its largest (``noise = NOISE_MAX``).
+Every field of every result beat and every surface message is compared, plain, with idle
+insertion and with backpressure, and in plain traffic the stated latencies. One run per lanes
+and traffic holds all five register sets, written between frames (:data:`SEPARATORS`). Two
+Verilator builds: 4 lanes and 3 (an odd count).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+from test_hdl_peak_detect import (
+    CONFIGS,
+    Y_HI,
+    Y_LO,
+    Frames,
+    check_results,
+    check_surfaces,
+    frames_for,
+)
+
+from hdl.matched_filter import SURFACE, filter_out_layout
+from hdl.peak_detect import PEAK_RESULT, PeakDetect
+from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.tb.streams import PLAIN, TRAFFIC
+from model.peak_detect import peak_detect
+from model.vectors import lane_words
+
+LANES = (4, 3)
+
+
+def lane_source(ys, ks, lanes, pattern) -> Source:
+    """Frames packed ``lanes`` samples per beat (``model.vectors.lane_words``)."""
+    words = lane_words([np.stack([y, k], axis=1) for y, k in zip(ys, ks, strict=True)], lanes)
+    v = words["values"]
+    data = {"count": words["count"], "first": words["first"], "last": words["last"]}
+    for j in range(lanes):
+        data[f"y.{j}"] = v[:, j, 0]
+        data[f"k.{j}"] = v[:, j, 1]
+    return Source(filter_out_layout(lanes), data, pattern)
+
+
+def lane_frames(L, cfg, lanes, rng):
+    """Frames for the lane logic (see the module docstring)."""
+    W, P = L - 1, 1 << cfg.noise_log2
+    n0 = W + 2 * P  # first candidate sample
+    ys, ks = [], []
+
+    def add(y, k=None):
+        y = np.clip(np.asarray(y, np.int64), Y_LO, Y_HI).astype(np.int32)
+        ys.append(y)
+        ks.append(np.zeros(len(y), np.int64) if k is None else np.asarray(k, np.int64))
+
+    base = lambda n: rng.integers(-3, 4, n)  # noqa: E731 (quiet baseline)
+    # every partial last beat from W + 2P to past W + 2P + 2 + lanes; a peak at the last
+    # candidate (N - 2) and one at the first (W + 2P)
+    for n in range(n0, n0 + lanes + 4):
+        y = base(n)
+        y[n0 - 1] = 10 ** 6
+        if n >= n0 + 2:
+            y[n0] = 2 * 10 ** 6
+            y[n - 2] = 3 * 10 ** 6
+        add(y)
+    # peaks on every other sample, both phases: several per beat, at every lane position
+    n = n0 + 6 * lanes + 7
+    for phase in (0, 1):
+        for heights in ("up", "down", "flat"):
+            y = base(n)
+            at = np.arange(n0 + phase, n - 1, 2)
+            h = {"up": 10_000 + 300 * np.arange(len(at)), "down": 30_000 - 300 * np.arange(len(at)),
+                 "flat": np.full(len(at), 20_000)}[heights]
+            y[at] = h
+            add(y)
+    # plateaus (the first sample counts) and template switches, one lane position per frame
+    for o in range(lanes):
+        c = n0 + 2 * lanes + o
+        y = base(c + 4 * lanes)
+        y[c:c + 2] = 40_000  # plateau of two
+        y[c + lanes + 1:c + lanes + 4] = 30_000  # plateau of three
+        y[c + 2 * lanes + 2] = 50_000
+        add(y)
+        for switch in (0, 1, 2):  # k(c-1) != k(c+1) for switches at c and c + 1, not c + 2
+            y = base(c + 2 * lanes)
+            y[n0 + 1] = 60_000
+            y[c] = 20_000
+            k = np.zeros(len(y), np.int64)
+            k[c + switch:] = 3
+            add(y, k)
+    # thresholds: peaks at mu + thr (none) and mu + thr + 1 (a peak); for rule 2 the rise
+    # above a valley at thr and thr + 1
+    y = base(n0 + 12 * lanes)
+    r = peak_detect(y.astype(np.int32), W, cfg)
+    mu, thr = int(r.mu), int(r.threshold)
+    for i, amp in enumerate((thr, thr + 1, thr, thr + 1)):
+        y[n0 + 1 + i * (lanes + 1)] = mu + amp
+    valley = n0 + 6 * lanes
+    y[valley] = mu - 10 ** 5
+    y[valley + 2] = mu - 10 ** 5 + thr
+    y[valley + lanes + 2] = mu - 10 ** 5 + thr + 1
+    add(y)
+    # noise at its largest: baseline on the top rail, noise window on the bottom rail
+    y = np.full(n0 + 5 * lanes, Y_HI, np.int64)
+    y[W + P:n0] = Y_LO
+    y[n0 + 2] = Y_HI - 1
+    add(y)
+    return ys, ks
+
+
+def frames_lanes(config_name, lanes) -> Frames:
+    fr = frames_for(config_name)
+    rng = np.random.default_rng(100 + lanes)
+    ys, ks = lane_frames(fr.L, fr.cfg, lanes, rng)
+    return Frames(fr.L, fr.cfg, fr.ys + ys, fr.ks + ks)
+
+
+#: One-sample frames between two register sets, their results not compared: the register
+#: ports change as the last of them is offered. The first waits in D1 until the previous
+#: real frame's result is taken (``busy``), the second until the first's is, so the change
+#: reaches no real frame in flight (the detector reads its registers as a beat passes).
+SEPARATORS = 3
+
+
+@dataclass
+class Stream:
+    """Every register set of ``CONFIGS`` in one stream, each with its frames."""
+
+    lanes: int
+    ys: list = field(default_factory=list)
+    ks: list = field(default_factory=list)
+    group: list = field(default_factory=list)  # per frame: its register set, None: separator
+    changes: list = field(default_factory=list)  # (beat, port, value)
+
+    def __post_init__(self):
+        beat = 0
+        for g, name in enumerate(CONFIGS):
+            fr = frames_lanes(name, self.lanes)
+            if g:
+                beat += SEPARATORS - 1
+                ports = {**cfg_ports(fr.cfg, "peak"), "taps": fr.L}
+                self.changes += [(beat, port, v) for port, v in ports.items()]
+                beat += 1
+                self.add([np.zeros(1, np.int32)] * SEPARATORS,
+                         [np.zeros(1, np.int64)] * SEPARATORS, None)
+            self.add(fr.ys, fr.ks, fr)
+            beat += sum(-(-len(y) // self.lanes) for y in fr.ys)
+
+    def add(self, ys, ks, fr):
+        self.ys += ys
+        self.ks += ks
+        self.group += [fr] * len(ys)
+
+    def results(self):
+        """Model results of every frame (separators as the set before them)."""
+        out, fr = [], self.group[0]
+        for y, k, g in zip(self.ys, self.ks, self.group, strict=True):
+            fr = g or fr
+            out.append(peak_detect(y, fr.L - 1, fr.cfg, k))
+        return out
+
+    def real(self):
+        return np.array([g is not None for g in self.group])
+
+
+def check_latencies(res, st: Stream, results, dut: PeakDetect):
+    """Plain traffic: the stated latencies hold exactly where no wait applies."""
+    lanes = dut.lanes
+    # a beat reaching W + 2P + 2 samples waits for the threshold
+    need_at = [0 if g is None else g.L + 1 + (2 << g.cfg.noise_log2) for g in st.group]
+    beats = np.array([-(-len(y) // lanes) for y in st.ys])
+    starts = np.concatenate([[0], np.cumsum(beats)[:-1]])
+    accepted = res.sources["i"]["clock"]
+    out = res.sinks["o"]["clock"]
+
+    def waits(f, b):  # beat b of frame f waits for the threshold: it is the first to need
+        # it, or the next one (taken into the skid register behind it)
+        return any(lo < need_at[f] <= min(lo + lanes, len(st.ys[f]))
+                   for lo in (b * lanes, (b - 1) * lanes) if lo >= 0)
+
+    lat = out - accepted[starts + beats - 1]
+    free = [f for f in range(len(st.ys)) if not waits(f, beats[f] - 1)
+            and (f == 0 or accepted[starts[f] + beats[f] - 1] > out[f - 1])]
+    assert len(free) > len(st.ys) // 2
+    assert np.all(lat[free] == dut.result_latency), lat[free]
+    assert np.all(lat >= dut.result_latency)
+    surf = res.sinks["surface"]["clock"]
+    frames = [f for f, r in enumerate(results) if r.surface.found]
+    seen = {"plain": 0, "held": 0}
+    for f, clk in zip(frames, surf, strict=True):
+        b = (int(results[f].surface.n) + 1) // lanes
+        got = clk - accepted[starts[f] + b]
+        # a last beat may wait for the previous result as well (busy)
+        busy = b == beats[f] - 1 and f and accepted[starts[f] + b] <= out[f - 1]
+        if waits(f, b):
+            seen["held"] += 1
+            assert got > dut.surface_latency
+            assert busy or got <= dut.surface_latency + dut.threshold_bubble
+        else:
+            seen["plain"] += 1
+            assert got == dut.surface_latency or (busy and got > dut.surface_latency)
+    assert min(seen.values()) > 0, seen
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+@pytest.mark.parametrize("lanes", LANES)
+def test_verilator(tmp_path, lanes, traffic_name):
+    st = Stream(lanes)
+    source, sink = TRAFFIC[traffic_name]
+    first = st.group[0]
+    src = lane_source(st.ys, st.ks, lanes, source)
+    src.changes = st.changes
+    res = run(Design(PeakDetect, lanes=lanes), tmp_path, sources={"i": src},
+              sinks={"o": Sink(PEAK_RESULT, sink), "surface": Sink(SURFACE, PLAIN)},
+              static={**cfg_ports(first.cfg, "peak"), "taps": first.L},
+              label=f"peak_detect_l{lanes}-{traffic_name}")
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"o": 0, "surface": 0}
+    results, real = st.results(), st.real()
+    got = {name: v[real] for name, v in res.sinks["o"].items()}
+    check_results(got, [r for r, keep in zip(results, real, strict=True) if keep])
+    check_surfaces(res.sinks["surface"], results)
+    if traffic_name == "plain":
+        dut = PeakDetect(lanes=lanes)  # for its latency attributes only
+        dut._MustUse__silence = True
+        check_latencies(res, st, results, dut)
+
+
+def test_lane_frames_reach_the_cases():
+    """The lane frames hold what they are for (else the Verilator runs prove less)."""
+    L, cfg = CONFIGS["rule0"]
+    W, P, lanes = L - 1, 1 << cfg.noise_log2, 4
+    ys, ks = lane_frames(L, cfg, lanes, np.random.default_rng(0))
+    res = [peak_detect(y, W, cfg, k) for y, k in zip(ys, ks, strict=True)]
+    lens = {len(y) for y in ys}
+    assert {W + 2 * P + 1, W + 2 * P + 2} <= lens
+    assert {n % lanes for n in lens} == set(range(lanes))
+    surface_lanes = {int(r.surface.n) % lanes for r in res if r.surface.found}
+    bottom_lanes = {int(r.bottom.n) % lanes for r in res if r.bottom.found}
+    assert surface_lanes == bottom_lanes == set(range(lanes))
+    # a peak at mu + thr is none, at mu + thr + 1 is one; the template switch rule bites
+    thr_frame = res[-2]
+    assert thr_frame.surface.n == W + 2 * P + 1 + (lanes + 1)
+    assert int(res[-1].noise) == (1 << 24) - 1
+
+
+def test_lanes_must_be_positive():
+    for bad in (0, -1):
+        with pytest.raises(ValueError, match=rf"^lanes must be an integer of at least 1, "
+                                             rf"not {bad}$"):
+            PeakDetect(lanes=bad)
+    dut = PeakDetect(lanes=8)
+    dut._MustUse__silence = True
+    assert dut.lanes == 8
+    assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == (3, 25, 18)
