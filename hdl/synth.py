@@ -126,6 +126,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         component = components[name](**(params or {}))
         if lanes is None:
             lanes = getattr(component, "lanes", 1)
+        # what a throughput figure needs beyond fmax (hdl.detect.FilterDetect has them)
+        extra = {k: getattr(component, k) for k in ("frame_gap_clocks", "min_bin_offset",
+                                                     "taps_max") if hasattr(component, k)}
         (wd / f"{name}.v").write_text(verilog.convert(component, name=name, emit_src=False,
                                                       platform=ECP5_SYNTH))
         _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
@@ -148,6 +151,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "brams": util.get("DP16KD", 0),
         "lanes": lanes,
         "params": dict(params or {}),
+        **extra,
         "samples_per_s": round(lanes * f * 1e6),
         "target_mhz": target_mhz,
         "seconds": round(time.perf_counter() - t0, 1),
