@@ -28,11 +28,11 @@ from model.matched_filter import K_MAX, L_MAX
 from .layouts import config_signature
 from .matched_filter import (
     COEF_WRITE,
-    FILTER_IN,
-    FILTER_OUT,
     LATENCY,
     SURFACE_APPLY,
     MatchedFilter,
+    filter_in_layout,
+    filter_out_layout,
 )
 from .peak_detect import PEAK_RESULT, SURFACE_LATENCY, PeakDetect
 
@@ -45,11 +45,19 @@ MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1
 class FilterDetect(wiring.Component):
     """Filter and detector with the surface fed back; bit-exact to ``filter_and_detect``.
 
+    Parameters
+    ----------
+    lanes : int
+        Samples per clock (``hdl.matched_filter.filter_in_layout``): 1 is the production join;
+        more lanes raise the ``bin_offset`` bound to :attr:`min_bin_offset`.
+    taps_max : int
+        Taps the filter holds (``L`` of a bank may not exceed it); ``lanes x taps_max`` DSPs.
+
     Attributes
     ----------
-    i : In(stream.Signature(FILTER_IN))
+    i : In(stream.Signature(filter_in_layout(lanes)))
         Stitched samples with the frame markers.
-    y : Out(stream.Signature(FILTER_OUT))
+    y : Out(stream.Signature(filter_out_layout(lanes)))
         The filter output of every sample (``y``, ``k``, markers).
     o : Out(stream.Signature(PEAK_RESULT))
         One result per frame (``mu``, ``noise``, ``thr``, surface and bottom records).
@@ -60,6 +68,13 @@ class FilterDetect(wiring.Component):
     templates, taps : In
         ``K`` and ``L`` of the bank.
 
+    min_bin_offset : int
+        The join is exact for ``bin_offset >= min_bin_offset`` (16 at one lane, the register's
+        floor; ``lanes x (filter latency + surface latency + SURFACE_APPLY) + 1`` in general,
+        ``MatchedFilter.max_unsurfaced``). A bank for a multi-lane build must respect it.
+    frame_gap_clocks : int
+        Clocks per frame beyond its ``ceil(N / lanes)`` beats (the detector's threshold wait).
+
     Notes
     -----
     Latency: ``y`` as the filter (``LATENCY`` = 11 clocks); the result ``RESULT_LATENCY`` = 14
@@ -68,10 +83,18 @@ class FilterDetect(wiring.Component):
     ``y``.
     """
 
-    def __init__(self):
+    def __init__(self, lanes: int = 1, taps_max: int = L_MAX):
+        # the parts are made here so that their latencies give the bound before elaboration
+        self._filter = MatchedFilter(lanes=lanes, taps_max=taps_max)
+        self._detect = PeakDetect(lanes=lanes)
+        self.lanes, self.taps_max = lanes, taps_max
+        #: smallest ``bin_offset`` for which the fed-back surface always arrives in time
+        self.min_bin_offset = self._filter.max_unsurfaced(self._detect.surface_latency) + 1
+        #: clocks a frame costs beyond its beats (the detector's wait for its threshold)
+        self.frame_gap_clocks = self._detect.threshold_bubble
         super().__init__({
-            "i": In(stream.Signature(FILTER_IN)),
-            "y": Out(stream.Signature(FILTER_OUT)),
+            "i": In(stream.Signature(filter_in_layout(lanes))),
+            "y": Out(stream.Signature(filter_out_layout(lanes))),
             "o": Out(stream.Signature(PEAK_RESULT)),
             "coef": In(stream.Signature(COEF_WRITE)),
             "cfg_filter": In(config_signature("filter")),
@@ -82,8 +105,8 @@ class FilterDetect(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        m.submodules.filter = f = MatchedFilter()
-        m.submodules.detect = p = PeakDetect()
+        m.submodules.filter = f = self._filter
+        m.submodules.detect = p = self._detect
         wiring.connect(m, wiring.flipped(self.i), f.i)
         wiring.connect(m, wiring.flipped(self.coef), f.coef)
         wiring.connect(m, wiring.flipped(self.o), p.o)

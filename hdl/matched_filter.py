@@ -122,6 +122,97 @@ def frame_tags(n_frames: int) -> list[int]:
     return [f % (1 << TAG_WIDTH) for f in range(n_frames)]
 
 
+def _flow_control(m: Module, c, capacity: int):
+    """Admission of a free-running pipeline that ends in an output buffer of ``capacity``.
+
+    Returns ``(accept, take, accept_dl)``: a beat accepted at ``c.i``, taken at ``c.o``, and a
+    copy of ``accept`` for the delay line's enables.
+    """
+    # The pipeline runs free (no clock enable: a stall signal fanned out to every register
+    # was the longest path) and ends in a small output buffer with a bypass. `inflight`
+    # counts samples accepted and not yet taken at `o`; admitting at most CAPACITY =
+    # LATENCY + 1 of them keeps one sample per clock when `o` is ready, never overflows the
+    # buffer, and holds no more samples between the input and the consumer than a stalled
+    # pipeline of LATENCY registers did (the surface feedback bound counts on that).
+    accept, take = Signal(), Signal()
+    inflight = Signal(range(capacity + 1))
+    # `room` (inflight < capacity) is kept twice, once inverted (`full`) so that synthesis
+    # cannot merge the two: `full` drives i.ready and the frame state, `room` only the
+    # delay line's enables (1 024 at one lane), whose long net then stays off the state
+    # logic's paths.
+    room, full = Signal(init=1), Signal()
+    accept_dl = Signal()  # = accept, for the delay line
+    m.d.comb += [
+        c.i.ready.eq(~full & ~c.coef.valid),
+        accept.eq(c.i.valid & c.i.ready),
+        accept_dl.eq(c.i.valid & room & ~c.coef.valid),
+        take.eq(c.o.valid & c.o.ready),
+        c.coef.ready.eq(1),
+    ]
+    inflight_nx = Signal.like(inflight)
+    m.d.comb += inflight_nx.eq(inflight + accept - take)
+    m.d.sync += [inflight.eq(inflight_nx), room.eq(inflight_nx < capacity),
+                 full.eq(inflight_nx >= capacity)]
+    return accept, take, accept_dl
+
+
+# The last two stages. round_shift(acc, s) = (acc + 2^(s-1)) >> s = ((acc >> (s-1)) + 1) >> 1 for
+# s >= 1, and acc = (2 acc + 1) >> 1 for s = 0: so the first stage shifts t = (2 acc) >> s, with
+# no add, and the second adds 1 to the low bits of t only. The saturation is decided on acc in
+# the first, beside the shift, against bounds made from out_shift a clock earlier: y > hi when
+# t >= 2 hi + 1, i.e. acc >= (2 hi + 1) 2^(s-1) (acc >= hi + 1 for s = 0); y < lo when
+# t <= 2 lo - 2, i.e. acc < (2 lo - 1) 2^(s-1) (acc < lo for s = 0). The bounds are clamped
+# just outside acc's range, which keeps the compares as wide as acc.
+_Y_LO, _Y_HI = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
+
+
+def _saturation_bounds(m: Module, sh, acc_width: int):
+    """``(over_at, under_at)``, registered from ``sh``: ``y`` saturates high when
+    ``acc >= over_at``, low when ``acc < under_at``."""
+    big = 1 << (acc_width + 1)
+    bound = signed(acc_width + 3)
+    over_at, under_at = Signal(bound), Signal(bound)
+    with m.Switch(sh):
+        for v in range(1 << len(sh)):
+            o_at = _Y_HI + 1 if v == 0 else (2 * _Y_HI + 1) << (v - 1)
+            u_at = _Y_LO if v == 0 else (2 * _Y_LO - 1) << (v - 1)
+            with m.Case(v):
+                m.d.sync += [over_at.eq(min(o_at, big)), under_at.eq(max(u_at, -big))]
+    return over_at, under_at
+
+
+def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = ""):
+    """``y = sat_24(round_shift(acc, sh))`` two clocks after ``acc`` (shift and compares, then
+    round and mux)."""
+    t = Signal(signed(len(acc) + 1), name=f"{prefix}t")
+    over, under = Signal(name=f"{prefix}over"), Signal(name=f"{prefix}under")
+    t_low = t[:OUT_WIDTH + 1] + 1
+    m.d.sync += [
+        t.eq((acc << 1) >> sh), over.eq(acc >= over_at), under.eq(acc < under_at),
+        y.eq(Mux(over, _Y_HI, Mux(under, _Y_LO, t_low[1:]))),
+    ]
+
+
+def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take):
+    """The output buffer of ``capacity`` beats behind the pipeline's last stage ``pipe``:
+    registers, the head at entry 0; an empty buffer passes ``pipe`` straight through to ``o``."""
+    buf = [Signal(pipe.shape(), name=f"buf{i}") for i in range(capacity)]
+    held = Signal(range(capacity + 1))  # entries in use
+    any_held = Signal()  # held != 0
+    m.d.comb += [
+        o.valid.eq(any_held | pipe_valid),
+        o.payload.eq(Mux(any_held, buf[0], pipe)),
+    ]
+    pop = take & any_held  # the head leaves; the rest move down one entry
+    push = pipe_valid & ~(take & ~any_held)  # the pipeline's sample is kept
+    base = Signal.like(held)  # where a pushed sample lands
+    m.d.comb += base.eq(held - pop)
+    for i in range(capacity):
+        moved = Mux(pop, buf[i + 1] if i + 1 < capacity else 0, buf[i])
+        m.d.sync += buf[i].eq(Mux(push & (base == i), pipe, moved))
+    m.d.sync += [held.eq(base + push), any_held.eq((base + push) != 0)]
+
+
 class RegisteredMultiplier(Elaboratable):
     """``p = a * b`` (signed, up to 18 x 18 bits) between two registers, two clocks of latency.
 
@@ -182,18 +273,52 @@ class RegisteredMultiplier(Elaboratable):
 
 
 class MatchedFilter(wiring.Component):
-    """Depth-adaptive correlation of one frame after another, one sample per clock.
+    """Depth-adaptive correlation of one frame after another, ``lanes`` samples per clock.
 
     Bit-exact to :func:`model.matched_filter.matched_filter` with the surface of each frame as
     reported on ``surface`` (and so to :func:`model.detect.filter_and_detect` when joined with
     :class:`hdl.peak_detect.PeakDetect`, see :class:`hdl.detect.FilterDetect`).
 
+    Parameters
+    ----------
+    lanes : int
+        Samples per clock, ``>= 1`` (default 1). Each lane has its own ``taps_max``
+        multipliers (``lanes * taps_max`` DSP blocks) and its own copy of the bank.
+    taps_max : int
+        Multipliers per lane, ``1..L_MAX`` (default ``L_MAX``): the largest run-time ``taps``.
+
+    With the defaults this is the one-lane design described in the Notes; any other choice is
+    elaborated by :mod:`hdl._filter_lanes` (same ports and rules, these differences):
+
+    * ``i``/``o`` carry :func:`filter_in_layout` / :func:`filter_out_layout` beats of ``lanes``
+      samples (a frame's first sample in lane 0, only its last beat partial); ``count``,
+      ``first`` and ``last`` pass through; lanes from ``count`` on carry unspecified ``y``/``k``.
+    * ``taps`` (``L``) must be at most ``taps_max``; coefficient writes with ``j >= taps_max``
+      are ignored.
+    * ``bin_len >= lanes`` is required (the template changes at most once per beat; a shorter
+      bin gives wrong templates, not a hang).
+    * Latency ``latency = 6 + ceil(log2 taps_max)`` clocks (10 at 16 taps, 11 at 32, 12 at
+      64): the window and templates, the operands, the multiplier's two registers, the adder
+      tree, shift and round.
+      One beat per clock sustained; the output buffer holds ``latency + 1`` beats.
+    * A surface taken at one edge acts on beats accepted :data:`SURFACE_APPLY` = 2 edges later,
+      as one lane; its switch sample ``s + bin_offset`` may sit in any lane of such a beat. A
+      surface given ahead is taken the clock after its frame's first beat, so it acts from the
+      frame's fourth beat on: ``s + bin_offset >= 3 * lanes`` is needed in that use. Joined,
+      see :meth:`max_unsurfaced`.
+    * Only the first surface message of a frame is used (later ones are taken and ignored).
+
     Attributes
     ----------
-    i : In(stream.Signature(FILTER_IN))
+    lanes, taps_max : int
+        As given.
+    latency : int
+        Clocks from an accepted beat to its output with no backpressure (:data:`LATENCY` for
+        the one-lane design).
+    i : In(stream.Signature(filter_in_layout(lanes)))
         Samples ``x`` (s16) with ``first``/``last``; ``first`` clears the delay line (the
         samples before it count as 0) and the surface, and starts a new frame tag.
-    o : Out(stream.Signature(FILTER_OUT))
+    o : Out(stream.Signature(filter_out_layout(lanes)))
         ``y`` (s24), the template ``k`` used, ``first``/``last`` passed along.
     surface : In(stream.Signature(SURFACE))
         Surface sample ``n`` of the frame with tag ``tag`` (frames are tagged 0, 1, 2, ...
@@ -210,7 +335,7 @@ class MatchedFilter(wiring.Component):
     templates : In(unsigned(5))
         ``K``, templates in the bank, ``1..K_MAX`` (init 1).
     taps : In(unsigned(7))
-        ``L``, taps per template, ``1..L_MAX`` (init ``L_MAX``).
+        ``L``, taps per template, ``1..taps_max`` (init ``taps_max``).
 
     Notes
     -----
@@ -242,18 +367,59 @@ class MatchedFilter(wiring.Component):
     counter.
     """
 
-    def __init__(self):
+    def __init__(self, lanes: int = 1, taps_max: int = L_MAX):
+        if not isinstance(lanes, int) or isinstance(lanes, bool) or lanes < 1:
+            raise ValueError(f"lanes must be an integer of at least 1, not {lanes!r}")
+        if (not isinstance(taps_max, int) or isinstance(taps_max, bool)
+                or not 1 <= taps_max <= L_MAX):
+            raise ValueError(f"taps_max must be an integer in 1..{L_MAX}, not {taps_max!r}")
+        self.lanes = lanes
+        self.taps_max = taps_max
+        if self._one_lane:
+            self.latency = LATENCY
+        else:
+            from . import _filter_lanes
+            self.latency = _filter_lanes.latency(taps_max)
         super().__init__({
-            "i": In(stream.Signature(FILTER_IN)),
-            "o": Out(stream.Signature(FILTER_OUT)),
+            "i": In(stream.Signature(filter_in_layout(lanes))),
+            "o": Out(stream.Signature(filter_out_layout(lanes))),
             "surface": In(stream.Signature(SURFACE)),
             "coef": In(stream.Signature(COEF_WRITE)),
             "cfg": In(config_signature("filter")),
             "templates": In(unsigned(K_MAX.bit_length()), init=1),
-            "taps": In(unsigned(L_MAX.bit_length()), init=L_MAX),
+            "taps": In(unsigned(L_MAX.bit_length()), init=taps_max),
         })
 
+    @property
+    def _one_lane(self) -> bool:
+        return self.lanes == 1 and self.taps_max == L_MAX
+
+    def max_unsurfaced(self, surface_delay: int) -> int:
+        """Samples of a frame past ``s`` the filter may accept without its surface, joined.
+
+        Parameters
+        ----------
+        surface_delay : int
+            Clock edges from the one at which the consumer takes the beat holding ``y[s + 1]``
+            to the one at which this filter takes the surface message (``SURFACE_LATENCY`` of
+            :mod:`hdl.peak_detect` in :class:`~hdl.detect.FilterDetect`).
+
+        Returns
+        -------
+        int
+            ``lanes * (latency + surface_delay + SURFACE_APPLY)``: the filter may have accepted
+            samples up to ``s`` plus this many before the surface acts, so the join is exact for
+            ``bin_offset >= max_unsurfaced(surface_delay) + 1``. Derivation: at most
+            ``latency`` beats are accepted after the one holding ``y[s + 1]`` (which holds up to
+            ``lanes - 1`` more samples) by the edge the consumer takes it, and one per clock
+            until ``SURFACE_APPLY`` edges after the message is taken.
+        """
+        return self.lanes * (self.latency + surface_delay + SURFACE_APPLY)
+
     def elaborate(self, platform):
+        if not self._one_lane:
+            from . import _filter_lanes
+            return _filter_lanes.elaborate(self, platform)
         m = Module()
         cfg, d = self.cfg, self.i.payload
         # The pipeline runs free (no clock enable: a stall signal fanned out to every register
@@ -263,24 +429,7 @@ class MatchedFilter(wiring.Component):
         # buffer, and holds no more samples between the input and the consumer than a stalled
         # pipeline of LATENCY registers did (the surface feedback bound counts on that).
         capacity = LATENCY + 1
-        accept, take = Signal(), Signal()
-        inflight = Signal(range(capacity + 1))
-        # `room` (inflight < capacity) is kept twice, once inverted (`full`) so that synthesis
-        # cannot merge the two: `full` drives i.ready and the frame state, `room` only the
-        # delay line's 1 024 enables, whose long net then stays off the state logic's paths.
-        room, full = Signal(init=1), Signal()
-        accept_dl = Signal()  # = accept, for the delay line
-        m.d.comb += [
-            self.i.ready.eq(~full & ~self.coef.valid),
-            accept.eq(self.i.valid & self.i.ready),
-            accept_dl.eq(self.i.valid & room & ~self.coef.valid),
-            take.eq(self.o.valid & self.o.ready),
-            self.coef.ready.eq(1),
-        ]
-        inflight_nx = Signal.like(inflight)
-        m.d.comb += inflight_nx.eq(inflight + accept - take)
-        m.d.sync += [inflight.eq(inflight_nx), room.eq(inflight_nx < capacity),
-                     full.eq(inflight_nx >= capacity)]
+        accept, take, accept_dl = _flow_control(m, self, capacity)
 
         # ---- frame state: sample counter, tag, surface, template ----
         # The template of an accepted sample must be a few LUTs from registers (it fans out to
@@ -397,28 +546,10 @@ class MatchedFilter(wiring.Component):
             level = [a for a, _ in nxt]
         assert len(tree_stages) == LATENCY - 5, "the latency assumes L_MAX = 64"
         acc = level[0]
-        # ---- stage 10: shift and saturation compares, stage 11: round half up and saturate.
-        # round_shift(acc, s) = (acc + 2^(s-1)) >> s = ((acc >> (s-1)) + 1) >> 1 for s >= 1, and
-        # acc = (2 acc + 1) >> 1 for s = 0: so stage 10 shifts t = (2 acc) >> s, with no add, and
-        # stage 11 adds 1 to the low bits of t only. The saturation is decided on acc in stage
-        # 10, beside the shift, against bounds made from out_shift a clock earlier: y > hi when
-        # t >= 2 hi + 1, i.e. acc >= (2 hi + 1) 2^(s-1) (acc >= hi + 1 for s = 0); y < lo when
-        # t <= 2 lo - 2, i.e. acc < (2 lo - 1) 2^(s-1) (acc < lo for s = 0). The bounds are
-        # clamped just outside acc's range, which keeps the compares 40 bits wide ----
-        lo, hi = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
-        big = 1 << (len(acc) + 1)
+        # ---- stage 10: shift and saturation compares, stage 11: round half up and saturate
+        # (see _round_saturate) ----
         sh = cfg.out_shift
-        bound = signed(len(acc) + 3)
-        over_at, under_at = Signal(bound), Signal(bound)
-        with m.Switch(sh):
-            for v in range(1 << len(sh)):
-                o_at = hi + 1 if v == 0 else (2 * hi + 1) << (v - 1)
-                u_at = lo if v == 0 else (2 * lo - 1) << (v - 1)
-                with m.Case(v):
-                    m.d.sync += [over_at.eq(min(o_at, big)), under_at.eq(max(u_at, -big))]
-        t = Signal(signed(len(acc) + 1))
-        over, under = Signal(), Signal()
-        t_low = t[:OUT_WIDTH + 1] + 1
+        over_at, under_at = _saturation_bounds(m, sh, len(acc))
 
         m.d.sync += [
             sb[0].valid.eq(accept), sb[0].k.eq(k_sel),
@@ -429,28 +560,9 @@ class MatchedFilter(wiring.Component):
             m.d.sync += [a.eq(v) for a, v in stage]
         pipe = Signal(FILTER_OUT)  # the pipeline's last stage
         last_sb = sb[LATENCY - 1]
-        m.d.sync += [
-            t.eq((acc << 1) >> sh), over.eq(acc >= over_at), under.eq(acc < under_at),
-            pipe.y.eq(Mux(over, hi, Mux(under, lo, t_low[1:]))),
-        ]
+        _round_saturate(m, acc, sh, over_at, under_at, pipe.y)
         m.d.comb += [pipe.k.eq(last_sb.k), pipe.first.eq(last_sb.first),
                      pipe.last.eq(last_sb.last)]
 
-        # ---- output buffer: registers, the head at entry 0; an empty buffer passes the
-        # pipeline's sample straight through ----
-        buf = [Signal(FILTER_OUT, name=f"buf{i}") for i in range(capacity)]
-        held = Signal(range(capacity + 1))  # entries in use
-        any_held = Signal()  # held != 0
-        m.d.comb += [
-            self.o.valid.eq(any_held | last_sb.valid),
-            self.o.payload.eq(Mux(any_held, buf[0], pipe)),
-        ]
-        pop = take & any_held  # the head leaves; the rest move down one entry
-        push = last_sb.valid & ~(take & ~any_held)  # the pipeline's sample is kept
-        base = Signal.like(held)  # where a pushed sample lands
-        m.d.comb += base.eq(held - pop)
-        for i in range(capacity):
-            moved = Mux(pop, buf[i + 1] if i + 1 < capacity else 0, buf[i])
-            m.d.sync += buf[i].eq(Mux(push & (base == i), pipe, moved))
-        m.d.sync += [held.eq(base + push), any_held.eq((base + push) != 0)]
+        _output_buffer(m, self.o, capacity, pipe, last_sb.valid, take)
         return m

@@ -1,0 +1,248 @@
+"""The matched filter at several samples per clock (``lanes``) and with fewer taps (``taps_max``).
+
+Private part of :class:`hdl.matched_filter.MatchedFilter`: :func:`elaborate` builds the design
+whenever ``lanes > 1`` or ``taps_max < L_MAX`` (the one-lane, ``L_MAX``-tap design stays as it
+was). Same arithmetic, per lane: lane ``p`` of a beat whose lane 0 is sample ``b`` computes
+``y[b + p]`` with its own ``taps_max`` multipliers and coefficient memories.
+
+Delay line. A window of ``taps_max + lanes - 1`` registers ``w[i]`` holds ``x[b - L + 1 + i]``
+for the beat's samples and the ``L - 1`` before them: the history below ``L - 1``, the beat's
+lanes entering at ``L - 1 .. L + lanes - 2``. So lane ``p``, tap ``j`` always reads ``w[p + j]``
+(fixed wiring, whatever the run-time ``L``), and taps ``j >= L`` are masked to 0 at the
+multiplier input. A frame's first beat enters with zero history.
+
+Template walk. ``k`` changes at most once per beat (``bin_len >= lanes``): ``rem`` is the next
+switch sample (``s + bin_offset``, then one every ``bin_len``) counted from the next beat's lane
+0, and the beat's lanes from ``rem`` on take the next template. ``rem``, the "switch in this
+beat" flag and the per-lane "at or past the switch" flags are computed a clock ahead, so the
+template of every lane is a mux from registers, as in the one-lane design.
+"""
+
+from __future__ import annotations
+
+from amaranth.hdl import Module, Mux, Signal, Value, signed
+from amaranth.lib import data, memory
+from amaranth.lib.fifo import SyncFIFO
+
+from model.matched_filter import COEF_WIDTH, K_MAX
+from model.registers import by_name
+
+from .layouts import STITCHED
+from .matched_filter import (
+    _J_BITS,
+    _K_SHAPE,
+    N_WIDTH,
+    TAG_WIDTH,
+    RegisteredMultiplier,
+    _flow_control,
+    _round_saturate,
+    _saturation_bounds,
+    filter_out_layout,
+)
+
+__all__ = ["elaborate", "latency"]
+
+
+def latency(taps_max: int) -> int:
+    """Clocks from an accepted beat to its output: window and templates (1), the operands in
+    fabric (1), multiplier input and product (2), the adder tree (``ceil(log2 taps_max)``),
+    shift and round (2)."""
+    return 6 + (taps_max - 1).bit_length()
+
+
+def _tree(m: Module, terms: list, name: str) -> list[list]:
+    """A registered adder tree, two-input adds, one level per clock (an odd term out waits in a
+    register); returns the levels' registers, the last level holding the sum."""
+    levels = []
+    level = terms
+    while len(level) > 1:
+        nxt = []
+        for i in range(0, len(level) - 1, 2):
+            s = Signal(signed(max(len(level[i]), len(level[i + 1])) + 1),
+                       name=f"{name}_t{len(levels)}_{i // 2}")
+            m.d.sync += s.eq(level[i] + level[i + 1])
+            nxt.append(s)
+        if len(level) % 2:
+            s = Signal.like(level[-1], name=f"{name}_t{len(levels)}_{len(level) // 2}")
+            m.d.sync += s.eq(level[-1])
+            nxt.append(s)
+        levels.append(nxt)
+        level = nxt
+    return levels
+
+
+def elaborate(mf, platform) -> Module:
+    """The design of ``mf`` (a :class:`~hdl.matched_filter.MatchedFilter`) at ``mf.lanes``
+    samples per clock with ``mf.taps_max`` taps per lane."""
+    P, T, lat = mf.lanes, mf.taps_max, mf.latency
+    m = Module()
+    cfg, d = mf.cfg, mf.i.payload
+    xs = [d.x] if P == 1 else [d.x[p] for p in range(P)]
+
+    # flow control as the one-lane design: a free-running pipeline into an output buffer of
+    # `capacity` beats, i.ready registered
+    capacity = lat + 1
+    accept, _, accept_dl = _flow_control(m, mf, capacity)
+
+    # ---- frame state ----
+    n = Signal(N_WIDTH)  # index of the next beat's lane-0 sample
+    n1 = Signal(N_WIDTH, init=P % (1 << N_WIDTH))  # n + P
+    tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # so the first frame is tag 0
+    fresh = Signal()  # a surface was taken at the last edge (start holds s + bin_offset)
+    start = Signal(max(N_WIDTH, by_name("bin_offset").width) + 1)  # s + bin_offset
+    armed = Signal()  # rem is known for this frame
+    active = Signal()  # past s + bin_offset: every switch from now on is a bin end
+    # rem: the next switch sample minus the next beat's lane-0 index; negative when the switch
+    # sample passed before the surface came (the frame keeps template 0, as one lane)
+    rem = Signal(signed(len(start) + 2))
+    hit = Signal()  # the next beat holds the switch sample (lane rem)
+    after = Signal(P)  # after[p]: lane p of the next beat is at or past the switch
+    k = Signal(_K_SHAPE)  # template of the last lane of the last accepted beat
+    k_ev = Signal(_K_SHAPE)  # the template from the switch on
+    step = Signal(signed(by_name("bin_len").width + 1))  # bin_len - P, registered
+    m.d.sync += step.eq(cfg.bin_len - P)
+
+    # Surface messages: take the current frame's, drop older ones, hold newer ones. Only the
+    # first message of a frame is used (the detector sends one).
+    diff = Signal(TAG_WIDTH)
+    m.d.comb += diff.eq(mf.surface.payload.tag - tag)
+    newer = (diff != 0) & ~diff[-1]
+    m.d.comb += mf.surface.ready.eq(~newer)
+    take_s = mf.surface.valid & (diff == 0) & ~(accept & d.first)
+    m.d.sync += fresh.eq(take_s)
+    with m.If(take_s):
+        m.d.sync += start.eq(mf.surface.payload.n + cfg.bin_offset)
+
+    k_max = mf.templates - 1
+    k_sel = [Signal(_K_SHAPE, name=f"k_sel{p}") for p in range(P)]
+    m.d.comb += [k_sel[p].eq(Mux(d.first, 0, Mux(after[p], k_ev, k))) for p in range(P)]
+
+    n_nx, rem_nx = Signal.like(n), Signal.like(rem)
+    armed_nx, active_nx, k_nx = Signal(), Signal(), Signal.like(k)
+    m.d.comb += [n_nx.eq(n), rem_nx.eq(rem), armed_nx.eq(armed), active_nx.eq(active),
+                 k_nx.eq(k)]
+    with m.If(accept):
+        m.d.comb += [n_nx.eq(Mux(d.first, P, n1)), k_nx.eq(k_sel[P - 1])]
+        m.d.sync += n1.eq(Mux(d.first, 2 * P, n1 + P))
+        with m.If(d.first):
+            m.d.sync += tag.eq(tag + 1)
+    # hit_nx (0 <= rem_nx < P) is decided beside each candidate for rem_nx, from registers,
+    # not after the mux of the adds: after a switch the next one is in the next beat when
+    # rem + bin_len - P < P, i.e. rem < lim = 2 P - bin_len (registered); otherwise rem - P is
+    # in 0..P-1 when rem is in P..2P-1
+    lim = Signal(signed(len(step) + 1))
+    m.d.sync += lim.eq(2 * P - cfg.bin_len)
+    arm_rem = Signal.like(rem)
+    m.d.comb += arm_rem.eq(start - Mux(accept, n1, n))
+    hit_nx = Signal()
+    m.d.comb += hit_nx.eq(hit)
+    with m.If(accept & d.first):
+        m.d.comb += [armed_nx.eq(0), active_nx.eq(0), hit_nx.eq(0)]
+    with m.Elif(fresh & ~armed):
+        m.d.comb += [armed_nx.eq(1), rem_nx.eq(arm_rem),
+                     hit_nx.eq((arm_rem >= 0) & (arm_rem < P))]
+    with m.Elif(accept & armed):
+        m.d.comb += [rem_nx.eq(Mux(hit, rem + step, rem - P)),
+                     hit_nx.eq(Mux(hit, rem < lim, (rem >= P) & (rem < 2 * P)))]
+        with m.If(hit):
+            m.d.comb += active_nx.eq(1)
+    lane_bits = max((P - 1).bit_length(), 1)
+    m.d.sync += [
+        n.eq(n_nx), rem.eq(rem_nx), armed.eq(armed_nx), active.eq(active_nx), k.eq(k_nx),
+        hit.eq(hit_nx),
+        k_ev.eq(Mux(active_nx, Mux(k_nx >= k_max, k_nx, k_nx + 1), Mux(k_max >= 1, 1, 0))),
+    ]
+    m.d.sync += [after[p].eq(hit_nx & (rem_nx[:lane_bits] <= p)) for p in range(P)]
+
+    # ---- stage 1: the window. w[i] takes the history w[i + P] below L - 1 (0 at a frame's
+    # first beat) and lane i - (L - 1) of the beat from L - 1 on; the selects are decoded from
+    # L once and shared. Positions past L + P - 2 are never read unmasked ----
+    L = mf.taps
+    n_w = T + P - 1
+    w = [Signal(STITCHED, name=f"w{i}") for i in range(n_w)]
+    at = [Signal(name=f"at{v}") for v in range(T)]  # at[v]: L - 1 == v
+    m.d.comb += [at[v].eq(L == v + 1) for v in range(T)]
+    with m.If(accept_dl):
+        for i in range(n_w):
+            hist = Mux(d.first | (L <= i + 1), 0, w[i + P]) if i < T - 1 else 0
+            placed = [Mux(at[i - q], xs[q], 0) for q in range(P) if 0 <= i - q < T]
+            v = hist
+            for x in placed:
+                v = v | x
+            m.d.sync += w[i].eq(v)
+    mask = Signal(T)  # tap j in use (j < L), from the L that placed the window
+    m.d.sync += [mask[j].eq(L > j) for j in range(T)]
+
+    # ---- stages 2 to 4: per lane and tap, a LUT-RAM coefficient memory read with the lane's
+    # template into a RegisteredMultiplier. The lane's template register is copied per group
+    # of 4 taps (copy g holds k ^ g, its memories store h[k][j] at k ^ g, so the copies are
+    # not merged), letting each memory sit by its DSP as in the one-lane design ----
+    groups = min(K_MAX, -(-T // 4))
+    accs = []
+    for p in range(P):
+        k_copy = [Signal(_K_SHAPE, name=f"k{p}_copy{g}") for g in range(groups)]
+        m.d.sync += [k_copy[g].eq(k_sel[p] ^ g) for g in range(groups)]
+        prods = []
+        for j in range(T):
+            g = j * groups // T
+            mem = memory.Memory(shape=signed(COEF_WIDTH), depth=K_MAX, init=[])
+            m.submodules[f"h{p}_{j}"] = mem
+            wp = mem.write_port()
+            rp = mem.read_port(domain="comb")
+            mul = m.submodules[f"mul{p}_{j}"] = RegisteredMultiplier(STITCHED,
+                                                                     signed(COEF_WIDTH))
+            m.d.comb += [
+                wp.addr.eq(mf.coef.payload.addr[_J_BITS:] ^ g),
+                wp.data.eq(mf.coef.payload.data),
+                wp.en.eq(mf.coef.valid & (mf.coef.payload.addr[:_J_BITS] == j)),
+                rp.addr.eq(k_copy[g]),
+                mul.ce.eq(1),
+            ]
+            # stage 2: the operands in fabric registers, one pair per multiplier, which the
+            # placer can put by its DSP (a window register feeds up to `lanes` DSPs of
+            # different lanes, spread over the device's DSP rows)
+            a_pre = Signal(STITCHED, name=f"a{p}_{j}")
+            b_pre = Signal(signed(COEF_WIDTH), name=f"b{p}_{j}")
+            m.d.sync += [a_pre.eq(Mux(mask[j], w[p + j], 0)), b_pre.eq(rp.data)]
+            m.d.comb += [mul.a.eq(a_pre), mul.b.eq(b_pre)]
+            prods.append(mul.p)
+        levels = _tree(m, prods, f"l{p}")
+        accs.append(levels[-1][0] if levels else prods[0])
+    assert len(levels) == lat - 6
+
+    # ---- stages lat-1, lat: shift, round, saturate per lane ----
+    out_layout = filter_out_layout(P)
+    pipe = Signal(out_layout)  # the pipeline's last stage
+    ys = [pipe.y] if P == 1 else [pipe.y[p] for p in range(P)]
+    over_at, under_at = _saturation_bounds(m, cfg.out_shift, len(accs[0]))
+    for p in range(P):
+        _round_saturate(m, accs[p], cfg.out_shift, over_at, under_at, ys[p], f"o{p}_")
+
+    # side band of each stage: valid, per-lane k, count, first, last
+    side = data.StructLayout({"valid": 1, "k": data.ArrayLayout(_K_SHAPE, P),
+                              "count": len(d.count) if P > 1 else 1, "first": 1, "last": 1})
+    sb = [Signal(side, name=f"sb{i}") for i in range(1, lat + 1)]
+    m.d.sync += [sb[0].valid.eq(accept), sb[0].first.eq(d.first), sb[0].last.eq(d.last),
+                 sb[0].count.eq(d.count if P > 1 else 1)]
+    m.d.sync += [sb[0].k[p].eq(k_sel[p]) for p in range(P)]
+    m.d.sync += [sb[i].eq(sb[i - 1]) for i in range(1, lat)]
+    last_sb = sb[lat - 1]
+    m.d.comb += [pipe.first.eq(last_sb.first), pipe.last.eq(last_sb.last)]
+    if P == 1:
+        m.d.comb += pipe.k.eq(last_sb.k[0])
+    else:
+        m.d.comb += [pipe.count.eq(last_sb.count)]
+        m.d.comb += [pipe.k[p].eq(last_sb.k[p]) for p in range(P)]
+
+    # ---- output buffer: a FIFO of `capacity` beats in LUT RAM, bypassed when empty. (The
+    # one-lane design's shifting registers, at 8 lanes 10 x 230 of them selected by one
+    # `take`, were the longest path: 11.3 ns, nearly all of it routing that select.) ----
+    fifo = m.submodules.obuf = SyncFIFO(width=len(Value.cast(pipe)), depth=capacity)
+    m.d.comb += [
+        mf.o.valid.eq(fifo.r_rdy | last_sb.valid),
+        mf.o.payload.eq(Mux(fifo.r_rdy, fifo.r_data, pipe)),
+        fifo.r_en.eq(mf.o.ready),
+        fifo.w_data.eq(pipe),
+        fifo.w_en.eq(last_sb.valid & ~(mf.o.ready & ~fifo.r_rdy)),
+    ]
+    return m

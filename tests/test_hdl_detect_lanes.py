@@ -1,0 +1,107 @@
+"""hdl.detect.FilterDetect with ``lanes`` samples per clock against model.detect.filter_and_detect.
+
+The multi-lane filter and detector joined, the surface fed back inside the hardware, at the
+smallest ``bin_offset`` the join promises to be exact for (``FilterDetect.min_bin_offset``): every
+y and k of every lane and every result field. Echo-like frames (the detector finds surfaces and
+the template walk runs), short and random frames; plain, with idle insertion and with
+backpressure on both outputs. One Verilator build: 3 lanes (odd) of 8 taps.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from test_hdl_matched_filter import S16_HI, S16_LO, coef_source
+from test_hdl_peak_detect import check_results
+
+from hdl.detect import FilterDetect
+from hdl.matched_filter import filter_in_layout, filter_out_layout
+from hdl.peak_detect import PEAK_RESULT
+from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
+from hdl.tb.streams import TRAFFIC
+from model.bench import synthetic_codes, workload_bank
+from model.detect import filter_and_detect
+from model.matched_filter import template_index
+from model.registers import Config
+from model.stitch import stitch_config
+from model.vectors import lane_samples, lane_words
+
+LANES, TAPS_MAX = 3, 8
+N_ECHO_FRAMES = 4
+
+
+def join() -> FilterDetect:
+    return FilterDetect(lanes=LANES, taps_max=TAPS_MAX)
+
+
+def case():
+    """Frames and registers at the join's bound: the switch sample is the first one the
+    fed-back surface can still reach."""
+    rng = np.random.default_rng(44)
+    bank = workload_bank(4, TAPS_MAX)
+    cfg = Config(bin_offset=join().min_bin_offset, bin_len=LANES + 2, out_shift=14,
+                 bottom_rule=2, noise_log2=3, min_sep=4)
+    frames = [stitch_config(a, cfg) for a in synthetic_codes(N_ECHO_FRAMES, 500, seed=32)]
+    W, P = bank.L - 1, 1 << cfg.noise_log2
+    for n in (1, 2, LANES + 1, W + 2 * P + 1, W + 2 * P + 2, 95, 250):
+        frames.append(rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16))
+    return bank, cfg, frames
+
+
+def expected(bank, cfg, frames):
+    ys, ks, results = [], [], []
+    for x in frames:
+        y, r = filter_and_detect(x, bank, cfg)
+        ys.append(y)
+        ks.append(template_index(len(x), np.int64(r.surface.n), bank.K, cfg))
+        results.append(r)
+    return np.concatenate(ys).astype(np.int64), np.concatenate(ks).astype(np.int64), results
+
+
+def sample_source(frames, pattern) -> Source:
+    words = lane_words(frames, LANES)
+    data = {f"x.{p}": words["values"][:, p] for p in range(LANES)}
+    data.update({k: words[k] for k in ("count", "first", "last")})
+    return Source(filter_in_layout(LANES), data, pattern)
+
+
+def per_sample(got: dict) -> SimpleNamespace:
+    count = got["count"]
+    return SimpleNamespace(**{name: lane_samples(np.stack([got[f"{name}.{p}"]
+                                                           for p in range(LANES)], axis=1),
+                                                 count) for name in ("y", "k")})
+
+
+def test_bound_grows_with_lanes():
+    """One lane keeps the register's floor; more lanes need a larger bin_offset."""
+    assert FilterDetect().min_bin_offset == 16
+    assert FilterDetect(lanes=2, taps_max=64).min_bin_offset > 16
+    assert join().min_bin_offset > FilterDetect(lanes=2, taps_max=8).min_bin_offset
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+def test_verilator(tmp_path, traffic_name):
+    bank, cfg, frames = case()
+    source, sink = TRAFFIC[traffic_name]
+    res = run(Design(FilterDetect, lanes=LANES, taps_max=TAPS_MAX), tmp_path,
+              sources={"coef": coef_source(bank), "i": sample_source(frames, source)},
+              sinks={"y": Sink(filter_out_layout(LANES), sink),
+                     "o": Sink(PEAK_RESULT, sink.with_seed(sink.seed + 100))},
+              static={**cfg_ports(cfg, "filter", "cfg_filter"),
+                      **cfg_ports(cfg, "peak", "cfg_peak"),
+                      "templates": bank.K, "taps": bank.L},
+              label=f"filter_detect_lanes-{traffic_name}")
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"y": 0, "o": 0}
+    y, k, results = expected(bank, cfg, frames)
+    got = per_sample(res.sinks["y"])
+    assert len(got.y) == len(y)
+    for name, want in (("y", y), ("k", k)):
+        bad = np.flatnonzero(getattr(got, name) != want)
+        assert bad.size == 0, (f"{bad.size} mismatches of {name}, first at {bad[0]}: "
+                               f"{getattr(got, name)[bad[0]]} vs model {want[bad[0]]}")
+    check_results(res.sinks["o"], results)
+    assert sum(bool(r.surface.found) for r in results[:N_ECHO_FRAMES]) >= 3
+    assert k.max() == bank.K - 1, "the template walk should reach the last template"
