@@ -39,7 +39,7 @@ from .gate import Gate
 from .layouts import CODES, GATE_OUT, STITCHED, config_signature
 from .matched_filter import COEF_WRITE
 
-__all__ = ["ADC_IN", "Pipeline"]
+__all__ = ["ADC_IN", "Pipeline", "register_slice"]
 
 #: One ADC clock: the three codes, the outgoing-pulse trigger and the scan line sync.
 ADC_IN = data.StructLayout({
@@ -50,6 +50,17 @@ ADC_IN = data.StructLayout({
 
 _BESIDE_FILTER = data.StructLayout({"codes": CODES, "x": STITCHED})
 _INSIDE_BITS = 8  # frames inside the filter/detector: a handful at most
+
+
+def register_slice(width: int) -> SyncFIFOBuffered:
+    """A stream register slice: output data and ``w_rdy`` both from registers, one transfer
+    per clock sustained, two clocks of latency.
+
+    ``SyncFIFOBuffered`` of depth 3 (a 2-entry FIFO behind an output register). Depth 2 would
+    be a 1-entry FIFO whose ``w_rdy`` is low on the clock its entry moves out: half a transfer
+    per clock (measured; ``tests/test_hdl_pipeline.py`` checks the rate).
+    """
+    return SyncFIFOBuffered(width=width, depth=3)
 
 
 class Pipeline(wiring.Component):
@@ -179,13 +190,13 @@ class Pipeline(wiring.Component):
             ev.r_en.eq(gate.i.ready & st.o.valid),
         ]
 
-        # ---- gate -> a two-entry register slice -> filter/detector (x) + beside it (codes, x);
+        # ---- gate -> a register slice -> filter/detector (x) + beside it (codes, x);
         # bank_busy holds a new frame at the slice's output. The slice (its output and its
         # w_rdy are registers) keeps the hold and the consumers' ready off the gate's FIFO
         # read and room counters: straight through, the gate's LUT-RAM output -> hold ->
         # gate.o.ready -> the gate's free-space carry chain was the pipeline's critical path
         # (17.2 ns, 58 MHz).
-        gs = m.submodules.gate_slice = SyncFIFOBuffered(width=GATE_OUT.size, depth=2)
+        gs = m.submodules.gate_slice = register_slice(GATE_OUT.size)
         m.d.comb += [gs.w_data.eq(gate.o.payload), gs.w_en.eq(gate.o.valid),
                      gate.o.ready.eq(gs.w_rdy)]
         go = GATE_OUT(gs.r_data)
@@ -201,13 +212,13 @@ class Pipeline(wiring.Component):
         ]
         enters = fd.i.valid & fd.i.ready & go.first
 
-        # ---- filter output + beside it -> a two-entry register slice -> packetizer samples;
+        # ---- filter output + beside it -> a register slice -> packetizer samples;
         # result -> packetizer. The slice keeps the packetizer's collect logic (its `i.ready`
         # from the latched frame type and state) off the side FIFO's read and the filter's
         # output handshake: straight through, that was the pipeline's critical path (11.4 ns,
         # 87.5 MHz) once the packetizer's own size path was cut.
         beside = _BESIDE_FILTER(cx.r_data)
-        ps = m.submodules.pack_slice = SyncFIFOBuffered(width=PACK_IN.size, depth=2)
+        ps = m.submodules.pack_slice = register_slice(PACK_IN.size)
         p = Signal(PACK_IN)
         m.d.comb += [
             p.codes.eq(beside.codes),

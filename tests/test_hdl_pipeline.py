@@ -126,3 +126,33 @@ def test_overload_drops_whole_frames(tmp_path, scene):
     assert w["frames_sent"] + w["frames_dropped"] == w["shots"] == n
     assert w["fifo_level"] == 0 and w["frame_idle"] == 1
     assert res.sources["i"]["stalls"] == 0
+
+
+def test_register_slice_sustains_one_transfer_per_clock():
+    """The slices between the stages must not halve the rate (a depth-2 SyncFIFOBuffered
+    does: its 1-entry inner FIFO refuses a write on the clock its entry moves out)."""
+    from amaranth.sim import Simulator
+
+    from hdl.pipeline import register_slice
+
+    dut = register_slice(8)
+    moved = {"w": 0, "r": 0}
+
+    async def drive(ctx):
+        ctx.set(dut.w_en, 1)
+        ctx.set(dut.r_en, 1)
+        for i in range(60):
+            ctx.set(dut.w_data, i)
+            await ctx.tick()
+
+    async def count(ctx):
+        async for _clk, _rst, w_rdy, r_rdy in ctx.tick().sample(dut.w_rdy, dut.r_rdy):
+            moved["w"] += int(w_rdy)
+            moved["r"] += int(r_rdy)
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-6)
+    sim.add_testbench(drive)
+    sim.add_process(count)
+    sim.run_until(60e-6)
+    assert moved["w"] >= 58 and moved["r"] >= 56, moved
