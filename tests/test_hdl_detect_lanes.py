@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from test_hdl_detect import expected
 from test_hdl_matched_filter import S16_HI, S16_LO, coef_source
 from test_hdl_peak_detect import check_results
 
@@ -22,8 +23,6 @@ from hdl.peak_detect import PEAK_RESULT
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.tb.streams import TRAFFIC
 from model.bench import synthetic_codes, workload_bank
-from model.detect import filter_and_detect
-from model.matched_filter import template_index
 from model.registers import Config
 from model.stitch import stitch_config
 from model.vectors import lane_samples, lane_words
@@ -48,16 +47,6 @@ def case():
     for n in (1, 2, LANES + 1, W + 2 * P + 1, W + 2 * P + 2, 95, 250):
         frames.append(rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16))
     return bank, cfg, frames
-
-
-def expected(bank, cfg, frames):
-    ys, ks, results = [], [], []
-    for x in frames:
-        y, r = filter_and_detect(x, bank, cfg)
-        ys.append(y)
-        ks.append(template_index(len(x), np.int64(r.surface.n), bank.K, cfg))
-        results.append(r)
-    return np.concatenate(ys).astype(np.int64), np.concatenate(ks).astype(np.int64), results
 
 
 def sample_source(frames, pattern) -> Source:
