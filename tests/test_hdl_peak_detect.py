@@ -11,6 +11,7 @@ backpressure. One Verilator build.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,16 +90,19 @@ def lidar_frames(n_frames=5, n=600, seed=21, K=8, L=32, cfg=None):
     return list(y), ks
 
 
+def add_frame(ys: list, ks: list, y, k=None) -> None:
+    """Append frame ``y`` (clipped to s24) and its templates ``k`` (default all 0)."""
+    y = np.clip(np.asarray(y, np.int64), Y_LO, Y_HI).astype(np.int32)
+    ys.append(y)
+    ks.append(np.zeros(len(y), np.int64) if k is None else np.asarray(k, np.int64))
+
+
 def edge_frames(L, cfg, rng):
     """Frames around the length limits and the peak rule's corner cases."""
     W, P = L - 1, 1 << cfg.noise_log2
     n0 = W + 2 * P  # first candidate sample
     ys, ks = [], []
-
-    def add(y, k=None):
-        y = np.clip(np.asarray(y, np.int64), Y_LO, Y_HI).astype(np.int32)
-        ys.append(y)
-        ks.append(np.zeros(len(y), np.int64) if k is None else np.asarray(k, np.int64))
+    add = functools.partial(add_frame, ys, ks)
 
     base = lambda n: rng.integers(-3, 4, n)  # noqa: E731 (quiet baseline)
     for n in (1, 2, 3, W + P, n0, n0 + 1):  # too short: no peaks, mu = noise = 0

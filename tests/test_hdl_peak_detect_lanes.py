@@ -15,6 +15,7 @@ Verilator builds: 4 lanes and 3 (an odd count).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,7 @@ from test_hdl_peak_detect import (
     Y_HI,
     Y_LO,
     Frames,
+    add_frame,
     check_results,
     check_surfaces,
     frames_for,
@@ -55,11 +57,7 @@ def lane_frames(L, cfg, lanes, rng):
     W, P = L - 1, 1 << cfg.noise_log2
     n0 = W + 2 * P  # first candidate sample
     ys, ks = [], []
-
-    def add(y, k=None):
-        y = np.clip(np.asarray(y, np.int64), Y_LO, Y_HI).astype(np.int32)
-        ys.append(y)
-        ks.append(np.zeros(len(y), np.int64) if k is None else np.asarray(k, np.int64))
+    add = functools.partial(add_frame, ys, ks)
 
     base = lambda n: rng.integers(-3, 4, n)  # noqa: E731 (quiet baseline)
     # every partial last beat from W + 2P to past W + 2P + 2 + lanes; a peak at the last
