@@ -20,8 +20,7 @@ consumer never sees a partial frame, however long it holds ``ready`` low.
 from __future__ import annotations
 
 from amaranth.hdl import Module, Mux, Signal
-from amaranth.lib import stream, wiring
-from amaranth.lib.fifo import SyncFIFOBuffered
+from amaranth.lib import memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
@@ -50,6 +49,101 @@ def _check(name, value, lo, hi):
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
         raise ValueError(f"{name} must be an integer in {lo}..{hi}, not {value!r}")
     return value
+
+
+def _le(a, b):
+    """``a <= b`` as the sign of ``b - a``: one carry chain, which synthesis keeps as such
+    (a compare it may turn into a tree of LUTs)."""
+    return ~(b - a)[-1]
+
+
+def _step(count, up, down):
+    """``count + up - down`` (one-bit ``up`` and ``down``) as a choice among ``count`` and
+    ``count -/+ 1``, which are made from the register alone: the late inputs then pass one
+    LUT, not a carry chain."""
+    return Mux(up, Mux(down, count, count + 1), Mux(down, count - 1, count))
+
+
+class _Store(wiring.Component):
+    """The FIFO of the gate's frame store: unchecked writes, reads as a stream.
+
+    The writer keeps its own count of the room (the gate admits a frame only if all of it
+    fits), so there is no ``w_rdy`` and a write is never refused. A write to the memory and
+    the keeping of what was written are separate inputs, so that the memory's write enable
+    need not wait for the writer's last decision: an entry written but not kept is
+    overwritten by the next write. The oldest entry is read through the memory's synchronous
+    port, whose data register is ``r.payload``. Whether the memory holds anything is a
+    register (``ne``, beside the entry count), not a compare of pointers or of a level, so
+    that the read decision is one LUT from registers.
+
+    Parameters
+    ----------
+    width : int
+        Bits per entry.
+    depth : int, >= 1
+        Entries it can hold, output register included; the memory is ``depth`` rounded up to a
+        power of two (at least 2).
+
+    Attributes
+    ----------
+    w_data : In(width)
+        The entry to write.
+    w_en : In(1)
+        Write ``w_data`` to the memory at this clock; the writer guarantees that fewer than
+        ``depth`` entries are held (kept) then.
+    w_keep : In(1)
+        Keep the entry written at this clock (only with ``w_en``).
+    r : Out(stream.Signature(width))
+        The entries, oldest first.
+
+    Notes
+    -----
+    Latency: an entry written at clock t is valid on ``r`` at clock t + 2.
+    """
+
+    def __init__(self, width: int, depth: int):
+        self.width, self.depth = width, depth
+        super().__init__({"w_data": In(width), "w_en": In(1), "w_keep": In(1),
+                          "r": Out(stream.Signature(width))})
+
+    def elaborate(self, platform):
+        m = Module()
+        size = 1 << max(1, (self.depth - 1).bit_length())
+        # An entry is never read on the clock it is written (the count says it is there only
+        # at the next one), and the address read is never the one written then (it would take
+        # `size` entries held and one more coming): the read port need not see the write
+        # port, and synthesis need not build logic for a read and a write of one address
+        # (`no_rw_check`).
+        mem = m.submodules.mem = memory.Memory(shape=self.width, depth=size, init=[],
+                                               attrs={"no_rw_check": 1})
+        wp = mem.write_port()
+        rp = mem.read_port()
+        w_ptr = Signal(range(size))
+        r_ptr = Signal(range(size))
+        count = Signal(range(self.depth + 1))  # entries in the memory (output register not)
+        ne = Signal()  # count != 0
+        take = ne & (~self.r.valid | self.r.ready)  # oldest entry -> output register
+        # The same decision again, from copies of `ne` and `r.valid` kept inverted (so that
+        # synthesis does not merge them with the originals), for the count: `take` itself
+        # goes to every block of the memory, and the count need not follow it there.
+        empty = Signal(init=1)  # ~ne
+        idle = Signal(init=1)  # ~r.valid
+        take_c = ~empty & (idle | self.r.ready)
+        m.d.comb += [
+            wp.addr.eq(w_ptr), wp.data.eq(self.w_data), wp.en.eq(self.w_en),
+            rp.addr.eq(r_ptr), rp.en.eq(take), self.r.payload.eq(rp.data),
+        ]
+        keep = self.w_keep
+        with m.If(keep):
+            m.d.sync += w_ptr.eq(w_ptr + 1)  # modulo the power-of-two size
+        with m.If(take):
+            m.d.sync += [r_ptr.eq(r_ptr + 1), self.r.valid.eq(1)]
+        with m.Elif(self.r.ready):
+            m.d.sync += self.r.valid.eq(0)
+        ne_nx = keep | Mux(take_c, count != 1, ~empty)
+        m.d.sync += [count.eq(_step(count, keep, take_c)), ne.eq(ne_nx), empty.eq(~ne_nx),
+                     idle.eq(~take_c & (idle | self.r.ready))]
+        return m
 
 
 class Gate(wiring.Component):
@@ -90,7 +184,8 @@ class Gate(wiring.Component):
     bank_id : In(8)
         Coefficient-bank commit count, written into the header.
     dropped : Out(DROP_BITS)
-        Frames dropped for lack of room, saturating at ``2^DROP_BITS - 1``.
+        Frames dropped for lack of room, saturating at ``2^DROP_BITS - 1``; a frame is
+        counted 2 clocks after its first sample entered.
 
     Notes
     -----
@@ -98,10 +193,12 @@ class Gate(wiring.Component):
     empty and ``o.ready`` high; one sample per clock sustained.
 
     ``gate_len``, ``frame_type`` and ``bank_id`` are latched when a trigger is accepted, so a
-    frame's header always describes that frame; ``gate_delay`` likewise; ``fine_div`` acts at
-    once. Known failure modes: register values outside the map behave as follows (the model
-    rejects them): ``gate_len = 0`` keeps 1 sample and says so in ``length``; ``fine_div = 0``
-    counts like 1; ``gate_len > depth`` drops every frame.
+    frame's header always describes that frame; ``gate_delay`` likewise; ``fine_div`` is read
+    on a line sync and on the sample after each tick (a change between line syncs takes effect
+    at the next tick; the model assumes none). Known failure modes: register values outside
+    the map behave as follows (the model rejects them): ``gate_len = 0`` keeps 1 sample and
+    says so in ``length``; ``fine_div = 0`` counts like 1; ``gate_len > depth`` drops every
+    frame.
     """
 
     def __init__(self, depth: int = 4096, header_depth: int = 16, *, fine_start: int = 0,
@@ -132,63 +229,81 @@ class Gate(wiring.Component):
         step = self.i.valid  # one sample clock of the specification
         m.d.comb += self.i.ready.eq(1)
 
-        # Frame store. Each FIFO gets one entry more than its capacity so that the inner memory
-        # alone holds `depth` entries: the admission test below (length <= free, free counting
-        # depth - level) then guarantees w_rdy on every write, whatever the output register is
-        # doing.
-        data = m.submodules.data = SyncFIFOBuffered(width=GATE_OUT.size, depth=self.depth + 1)
-        hdrs = m.submodules.hdrs = SyncFIFOBuffered(width=_STORED.size, depth=self.header_depth + 1)
+        # Frame store: the samples and the headers of the admitted frames. The admission test
+        # below (length <= free, free counting depth - entries held) guarantees room for every
+        # write.
+        data = m.submodules.data = _Store(GATE_OUT.size, self.depth)
+        hdrs = m.submodules.hdrs = _Store(_STORED.size, self.header_depth)
 
         # Time and event counters (section 3): `fine` ticks every `fine_div` samples after the
-        # last line sync; `fine_sat` remembers that it would have passed its maximum. `pre1`
-        # (= pre + 1) and `fine1` (= fine + 1, or the maximum) are kept as registers beside
-        # `pre` and `fine` so that the tick compare and the fine step are one carry chain each,
-        # not an increment feeding a compare feeding an increment.
+        # last line sync; `fine_sat` remembers that it would have passed its maximum. The
+        # samples between ticks are counted down in `rem`, with `rem0` (rem == 0) registered
+        # beside it, so that the tick is a flag, not a compare: the step after a tick or on a
+        # line sync is the first of a new tick period, and reads `fine_div` (then counting
+        # fine_div - 2 more steps, the tick step excluded). `fine1` (= fine + 1) is kept as a
+        # register beside `fine`, and `top1` (fine1 == maximum) beside it, so that the fine
+        # step is a copy and an increment, and no compare feeds them. Once `fine` is at its
+        # maximum `fine_top` stops it, and `fine1`, then past the maximum, is not read.
         fine = Signal(FINE_BITS, init=self.fine_start)
-        fine1 = Signal(FINE_BITS, init=min(self.fine_start + 1, _FINE_MAX))
+        fine1 = Signal(FINE_BITS, init=(self.fine_start + 1) & _FINE_MAX)
+        top1 = Signal(init=self.fine_start + 1 == _FINE_MAX)  # fine1 == _FINE_MAX
         fine_top = Signal(init=self.fine_start == _FINE_MAX)  # fine == _FINE_MAX
         fine_sat = Signal()
-        pre1 = Signal(17, init=1)
+        renew = Signal(init=1)  # the next step is the first since a tick
+        rem = Signal.like(cfg.fine_div)  # steps still to go to the next tick, less one
+        rem0 = Signal()  # rem == 0
         coarse = Signal(COARSE_BITS, init=self.coarse_start)
         coarse1 = Signal(COARSE_BITS, init=(self.coarse_start + 1) % (1 << COARSE_BITS))
         shot = Signal(SHOT_BITS, init=self.shot_start)
         sync = p.line_sync
         sat_now = ~sync & fine_sat
         coarse_now = Mux(sync, coarse1, coarse)  # modulo 2^24 by the signal's width
-        tick = Mux(sync, 1, pre1) >= cfg.fine_div
+        period = sync | renew  # this step is the first of a tick period
+        tick = Mux(period, cfg.fine_div <= 1, rem0)
         with m.If(step):
             with m.If(sync):
                 m.d.sync += [coarse.eq(coarse1), coarse1.eq(coarse1 + 1)]
-            m.d.sync += pre1.eq(Mux(tick, 1, Mux(sync, 2, pre1 + 1)))
+            with m.If(tick):
+                m.d.sync += renew.eq(1)
+            with m.Elif(period):
+                m.d.sync += [renew.eq(0), rem.eq(cfg.fine_div - 2), rem0.eq(cfg.fine_div == 2)]
+            with m.Else():
+                m.d.sync += [rem.eq(rem - 1), rem0.eq(rem == 1)]
             with m.If(sync):
                 # fine restarts at 0, or 1 on a tick
-                m.d.sync += [fine.eq(tick), fine1.eq(tick + 1), fine_top.eq(0),
+                m.d.sync += [fine.eq(tick), fine1.eq(tick + 1), fine_top.eq(0), top1.eq(0),
                              fine_sat.eq(0)]
             with m.Elif(tick):
                 with m.If(fine_top):
                     m.d.sync += fine_sat.eq(1)
                 with m.Else():
-                    m.d.sync += [fine.eq(fine1), fine_top.eq(fine1 == _FINE_MAX),
-                                 fine1.eq(Mux(fine1 == _FINE_MAX, fine1, fine1 + 1))]
+                    m.d.sync += [fine.eq(fine1), fine_top.eq(top1), fine1.eq(fine1 + 1),
+                                 top1.eq(fine1 == _FINE_MAX - 1)]
         fine_now = Mux(sync, 0, fine)
 
         # Gate state: busy from the accepted trigger to the frame's last sample (inclusive).
-        # Beside the counters `wait` and `left`, registered flags say what their compares
-        # would (wait == 0, left == 1, no sample kept yet), so that the decisions below are a
-        # few LUTs deep, not counter compares.
+        # Beside the counters of samples to skip and to keep, registered flags say what their
+        # compares would (none or one left to skip, one left to keep, none kept yet), so that
+        # the decisions below are a few LUTs deep, not counter compares. The counters are
+        # kept less one (`wait_m1`, `left_m1`), so that a step is a decrement of the register
+        # and an idle clock a load of the configuration value less one or two, never a mux
+        # before a carry chain.
         busy = Signal()
-        wait = Signal.like(cfg.gate_delay)  # samples still to skip before the first kept one
-        wait0 = Signal(init=1)  # wait == 0 (it is, from the first kept sample on)
-        left = Signal.like(cfg.gate_len)  # samples still to keep
-        left1 = Signal()  # left == 1
+        wait_m1 = Signal.like(cfg.gate_delay)  # samples to skip before the first kept, less 1
+        wait0 = Signal(init=1)  # those samples are 0 (from the first kept sample on)
+        wait1 = Signal()  # those samples are 1 (wait_m1 == 0)
+        left_m1 = Signal.like(cfg.gate_len)  # samples still to keep, less 1
+        left1 = Signal()  # those samples are 1
         fresh = Signal()  # no sample of the open frame kept yet (left == the frame's length)
+        fresh0 = Signal()  # fresh & wait0: the next step is the open frame's first sample
         keep = Signal()  # the open frame was admitted to the FIFOs
         start = p.trigger & ~busy
-        length = Mux(cfg.gate_len == 0, 1, cfg.gate_len)
-        cur_wait = Mux(busy, wait, cfg.gate_delay)
-        cur_wait0 = Mux(busy, wait0, cfg.gate_delay == 0)
-        cur_left = Mux(busy, left, length)
-        cur_left1 = Mux(busy, left1, length == 1)
+        # gate_len = 0 counts as 1: only bit 0 differs, so only it waits for the zero test
+        length = cfg.gate_len | (cfg.gate_len == 0)
+        no_delay = cfg.gate_delay == 0
+        len1 = length == 1
+        cur_wait0 = Mux(busy, wait0, no_delay)
+        cur_left1 = Mux(busy, left1, len1)
 
         # The header being built: latched at the accepted trigger; on that clock itself the
         # live values are used (a 1-sample gate with no delay closes on its trigger clock).
@@ -209,42 +324,95 @@ class Gate(wiring.Component):
                 h_now.bank_id.eq(self.bank_id),
             ]
 
-        # Room in the FIFOs, counted here rather than read from their `level` (writes when they
-        # are made, reads when they happen): `free` is depth - level, and the admission test
-        # one compare of registers.
-        w_en, hw_en = Signal(), Signal()  # the registered FIFO writes (below)
-        # A write decided at one clock is taken off `free` at the next (with the registered
-        # write itself), so no compare sits in the loop that updates `free`; the admission test
-        # sees the write still pending through `free_m1` (= free - 1).
+        # Room in the FIFOs, counted here rather than read from their `level`: `free` is depth
+        # - entries held, taking a write off at the clock it is made and a read at the clock it
+        # happens; `free_m1` (= free - 1) is kept beside it, updated from itself.
+        w_en = Signal()  # a sample write decided at the last clock (not a frame's first)
+        hw_en = Signal()  # a header write, likewise
         free = Signal(range(self.depth + 1), init=self.depth)
         free_m1 = Signal(range(-1, self.depth + 1), init=self.depth - 1)
         hfree = Signal(range(self.header_depth + 1), init=self.header_depth)
+        hnz = Signal(init=1)  # hfree != 0
+        hone = Signal(init=self.header_depth == 1)  # hfree == 1
+        rd = self.o.valid & self.o.ready
+        hrd = self.header.valid & self.header.ready
         kept = (busy | start) & cur_wait0
         first = kept & (~busy | fresh)
         last = kept & cur_left1
-        # the four compares straight from registers, the pending write choosing among them
-        fits_h = Mux(w_en, h.length <= free_m1, h.length <= free)
-        fits_live = Mux(w_en, length <= free_m1, length <= free)
-        hroom = (hfree != 0) & ~(hw_en & (hfree == 1))
-        admit = Mux(busy, fits_h, fits_live) & hroom
-        keep_now = Mux(first, admit, keep)
+
+        # Admission, decided at the clock after a frame's first sample, from registers: the
+        # compares of that sample's clock, with the frame's length (the latched one, or the
+        # live one on a trigger clock, as gate_len may be written on that very clock) against
+        # `free` and `free_m1` and the header room, registered as they are; the write then
+        # pending (`wr_q`) chooses between them. The first sample, and the header of a
+        # 1-sample frame, are kept at that clock if the frame is admitted; from then on `keep`
+        # says. They are written to the memories whether admitted or not, if there is room for
+        # one entry (`one_q`, `hroom_q`), so that the memories' write enables need not wait for
+        # the admission: what is not kept is overwritten by the next write.
+        fit = Signal()  # the frame's samples and header fit, with no sample write pending
+        fit_m1 = Signal()  # ... with a sample write pending
+        hroom_q = Signal()  # its header fits
+        one_q = Signal()  # one sample fits
+        first_q = Signal()  # the last clock took a frame's first sample
+        single_q = Signal()  # ... which was also its last (a 1-sample frame)
+        wr_q = Signal()  # a sample write was pending then
+        admit = Mux(wr_q, fit_m1, fit)
+        wr = w_en | (first_q & admit)  # four inputs: one LUT
+        hwr = hw_en | (single_q & admit)
+        hroom = hnz & ~(hwr & hone)
+        keep_now = Mux(first_q, admit, keep)  # for the samples after the first
+        m.d.sync += [
+            fit.eq(Mux(busy, _le(h.length, free), _le(length, free)) & hroom),
+            fit_m1.eq(Mux(busy, _le(h.length, free_m1), _le(length, free_m1)) & hroom),
+            hroom_q.eq(hroom),
+            one_q.eq(Mux(wr, free_m1 > 0, free != 0)),
+            # = step & first, with `fresh0` rather than three flags and `gate_delay` == 0
+            first_q.eq(step & Mux(busy, fresh0, p.trigger & no_delay)),
+            single_q.eq(step & first & last), wr_q.eq(wr),
+        ]
+        with m.If(first_q):
+            m.d.sync += keep.eq(admit)
+        # The refused frames, counted a clock after the decision, off its paths.
+        drop = Signal()
+        m.d.sync += drop.eq(first_q & ~admit)
+        with m.If(drop & (self.dropped != (1 << DROP_BITS) - 1)):
+            m.d.sync += self.dropped.eq(self.dropped + 1)
+        # left1's next value is a borrow of a decrement (a signed result), not a compare;
+        # wait0's is a flag, made a step ahead (`wait1`: wait_m1 == 0).
+        left_dec2 = left_m1 - 2  # left_m1 >= 1 on a kept sample that is not the last
+        # While the gate is idle, its counters and flags take at every clock what a trigger
+        # would set them to (they are not read then), so that their enables do not wait for
+        # the trigger and the `gate_delay` zero test; only `busy` decides on them.
+        with m.If(~busy):
+            m.d.sync += [
+                wait_m1.eq(cfg.gate_delay - 2),
+                wait1.eq(cfg.gate_delay == 2),
+                wait0.eq(no_delay | (cfg.gate_delay == 1)),
+                fresh0.eq(~no_delay & (cfg.gate_delay == 1)),
+                fresh.eq(~no_delay),
+                left_m1.eq(Mux(no_delay, length - 2, length - 1)),
+                left1.eq(Mux(no_delay, length == 2, len1)),
+            ]
+        with m.Elif(step & ~wait0):  # a sample skipped
+            m.d.sync += [wait_m1.eq(wait_m1 - 1), wait1.eq(wait_m1 == 1), wait0.eq(wait1),
+                         fresh0.eq(wait1)]
+        with m.Elif(step):  # a sample kept
+            m.d.sync += [left_m1.eq(left_m1 - 1), left1.eq(left_dec2[-1]), fresh.eq(0),
+                         fresh0.eq(0), wait0.eq(1)]
         with m.If(step):
+            with m.If(busy):
+                m.d.sync += busy.eq(~(wait0 & left1))
+            with m.Else():
+                m.d.sync += busy.eq(p.trigger & ~(no_delay & len1))
             with m.If(busy | start):
                 m.d.sync += h.eq(h_now)
-                with m.If(~cur_wait0):
-                    m.d.sync += [wait.eq(cur_wait - 1), wait0.eq(cur_wait == 1),
-                                 left.eq(cur_left), left1.eq(cur_left1), busy.eq(1),
-                                 fresh.eq(1)]
-                with m.Else():
-                    m.d.sync += [left.eq(cur_left - 1), left1.eq(cur_left == 2),
-                                 busy.eq(~last), keep.eq(keep_now), fresh.eq(0), wait0.eq(1)]
             with m.If(start):
                 m.d.sync += shot.eq(shot + 1)
-            with m.If(first & ~admit & (self.dropped != (1 << DROP_BITS) - 1)):
-                m.d.sync += self.dropped.eq(self.dropped + 1)
 
-        # The FIFO writes, registered (the decisions above are the longest logic of the gate;
-        # the memories' write enables and the FIFOs' own pointer logic come after them).
+        # The FIFO writes of the samples after a frame's first, and of the header of a longer
+        # frame, registered (the memories' write enables and the FIFOs' own pointer logic
+        # come after them); the sample itself waits a clock in `beat`, the header in
+        # `hw_data`, for the writes decided a clock late as for those decided now.
         beat = Signal(GATE_OUT)
         hw_data = Signal(_STORED)
         m.d.sync += [
@@ -252,29 +420,36 @@ class Gate(wiring.Component):
             beat.x.eq(p.x),
             beat.first.eq(first),
             beat.last.eq(last),
-            w_en.eq(step & kept & keep_now),
+            # a kept sample after its frame's first (busy & wait0 & ~fresh)
+            w_en.eq(step & busy & wait0 & ~fresh & keep_now),
             hw_data.eq(h_now),
-            hw_en.eq(step & last & keep_now),
+            hw_en.eq(step & busy & wait0 & ~fresh & left1 & keep_now),
         ]
-        rd = data.r_en & data.r_rdy
-        hrd = hdrs.r_en & hdrs.r_rdy
-        free_nx = Signal.like(free)
-        m.d.comb += free_nx.eq(free - w_en + rd)
-        m.d.sync += [free.eq(free_nx), free_m1.eq(free_nx - 1),
-                     hfree.eq(hfree - hw_en + hrd)]
+        # The writes come last (a LUT or two after the decision registers), so the counts
+        # step by `_step`, and the header-room flags follow the cases (hfree == 2 from the
+        # register) rather than a compare of a sum.
+        m.d.sync += [
+            free.eq(_step(free, rd, wr)),
+            free_m1.eq(_step(free_m1, rd, wr)),
+            hfree.eq(_step(hfree, hrd, hwr)),
+            hnz.eq(Mux(hwr, Mux(hrd, hnz, ~hone), hnz | hrd)),
+            hone.eq(Mux(hwr == hrd, hone, Mux(hrd, ~hnz, hfree == 2))),
+        ]
         m.d.comb += [
             data.w_data.eq(beat),
-            data.w_en.eq(w_en),
+            data.w_en.eq(w_en | (first_q & one_q)),
+            data.w_keep.eq(wr),
             hdrs.w_data.eq(hw_data),
-            hdrs.w_en.eq(hw_en),
+            hdrs.w_en.eq(hw_en | (single_q & hroom_q)),
+            hdrs.w_keep.eq(hwr),
             # Output side: plain FIFO reads.
-            self.o.payload.eq(data.r_data),
-            self.o.valid.eq(data.r_rdy),
-            data.r_en.eq(self.o.ready),
-            self.header.valid.eq(hdrs.r_rdy),
-            hdrs.r_en.eq(self.header.ready),
+            self.o.payload.eq(data.r.payload),
+            self.o.valid.eq(data.r.valid),
+            data.r.ready.eq(self.o.ready),
+            self.header.valid.eq(hdrs.r.valid),
+            hdrs.r.ready.eq(self.header.ready),
         ]
-        stored = _STORED(hdrs.r_data)
+        stored = _STORED(hdrs.r.payload)
         out = self.header.payload
         m.d.comb += [out.sync.eq(FRAME_SYNC), out.reserved.eq(0)]
         for name in _STORED.members:

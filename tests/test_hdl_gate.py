@@ -270,6 +270,21 @@ class TestAmaranthSim:
         check(res, sc, drops=True)
         assert 0 < res.watch["dropped"] < len(sc.model()[0])
 
+    @pytest.mark.parametrize(("length", "delay", "depth", "header_depth"),
+                             [(1, 0, 4, 2), (1, 0, 2, 4), (1, 1, 2, 4), (2, 0, 3, 4)])
+    def test_drops_short_frames(self, length, delay, depth, header_depth):
+        """Short frames back to back into a slow consumer, with the sample FIFO or the header
+        FIFO the tighter: a frame's first sample (and a 1-sample frame's header) is written
+        to the memory before the admission decides on it; a refused one leaves no trace."""
+        period = length + delay
+        sc = Scenario([Segment(cfg(gate_len=length, gate_delay=delay), 300,
+                               triggers=list(range(0, 280, period)))])
+        slow = Pattern("periodic", on=1, off=7)
+        res = simulate(Gate(depth=depth, header_depth=header_depth),
+                       **sc.traffic(PLAIN, slow))
+        check(res, sc, drops=True)
+        assert 0 < res.watch["dropped"] < len(sc.model()[0])
+
     def test_out_of_map_registers(self):
         """gate_len 0 keeps one sample (length 1); fine_div 0 counts like 1."""
         trig, syncs = [2, 3, 9], [5]
