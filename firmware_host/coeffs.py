@@ -24,6 +24,7 @@ import numpy as np
 
 from model.fixed import int_range
 from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH, Bank
+from model.registers import by_name
 
 __all__ = [
     "BANK_FORMAT",
@@ -415,7 +416,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         bank=bank,
         templates=templates,
         bin_depths_m=depths,
-        bin_offset=max(16, round(first_bin_m / m_per_sample)),
+        bin_offset=max(by_name("bin_offset").lo, round(first_bin_m / m_per_sample)),
         bin_len=max(1, round(width_m / m_per_sample)),
         out_shift=shift,
         snr_loss_db=quantization_snr_loss_db(templates, bank),

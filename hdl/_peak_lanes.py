@@ -1,9 +1,9 @@
-"""The peak detector at several samples per clock (``lanes > 1``).
+"""The peak detector's design, at any number of samples per clock (``lanes``).
 
-Private part of :class:`hdl.peak_detect.PeakDetect`: :func:`elaborate` builds the design when
-``lanes > 1`` (the one-lane design stays as it was). Same rules, same result beat and surface
-message; a beat (``hdl.matched_filter.filter_out_layout``) brings ``count`` samples, lane 0 the
-earliest, and only a frame's last beat may be partial.
+Private part of :class:`hdl.peak_detect.PeakDetect`: :func:`elaborate` builds it. A beat
+(``hdl.matched_filter.filter_out_layout``) brings ``count`` samples, lane 0 the earliest, and
+only a frame's last beat may be partial; one lane's ``FILTER_OUT`` sample is taken as a beat of
+one (so one lane and many are one design, tested at 1, 3 and 4 lanes).
 
 Three parts, all free-running pipelines with a valid bit per stage (no clock enable from a
 stall; only the input register ``D1`` holds a beat):
@@ -22,23 +22,23 @@ stall; only the input register ``D1`` holds a beat):
   With several lanes the noise window can close in the very beat that holds the first
   candidate, so a frame pays one bubble of at most ``threshold_bubble`` clocks. A frame's last
   beat also waits in ``D1`` until the previous frame's result has been taken (``busy``).
-* **Decision**, from ``D1`` as the beat leaves it (``go``): (D2) per lane the local maximum
-  ``y[c-1] < y[c] >= y[c+1]`` with the last two samples of the previous beat, ``k(c-1) =
-  k(c+1)``, ``c >= W + 2P``, ``y[c] > mu + thr``; (D3) the surface: first-peak priority across
-  the lanes, the surface message, and per lane "eligible as a bottom" (``c >= s + min_sep``:
-  lane distances when the surface is in this beat or the one before, else against a
-  registered ``s + min_sep``); then a segmented prefix minimum across the lanes (rule 2; the
-  surface's lane starts the segment), the running minimum carried from beat to beat (one
-  register, one compare), the key per lane (rule 0: the lane, 1: ``y``, 2: the rise, kept only
-  above ``thr``), a max-tree across the lanes (earliest on a tie) and (B) the bottom against
-  the frame's best. The loops at D3 and B carry only flags and the best key; the records
-  (about 90 bits each) follow a clock later (D4, C) from the beat's copy, so no wide mux hangs
-  on a loop compare. The frame state is cleared by the ``first`` beat passing, so frames
-  follow each other without a gap.
+* **Decision**, from ``D1`` as the beat leaves it (``go``): (D2a, D2) per lane the local
+  maximum ``y[c-1] < y[c] >= y[c+1]`` with the last two samples of the previous beat,
+  ``k(c-1) = k(c+1)``, ``c >= W + 2P``, ``y[c] > mu + thr`` (the compares, then their AND);
+  (D3) the surface: first-peak priority across the lanes, the surface message, and per lane
+  "eligible as a bottom" (``c >= s + min_sep``: lane distances when the surface is in this
+  beat or the one before, else against a registered ``s + min_sep``); then a segmented
+  prefix minimum across the lanes (rule 2; the surface's lane starts the segment), the
+  running minimum carried from beat to beat (its loop cut in two: compares, then the
+  select), the key per lane (rule 0: the lane, 1: ``y``, 2: the rise, kept only above
+  ``thr``), a max-tree across the lanes (earliest on a tie) and (B1, B2) the bottom against
+  the frame's best (compares, then the decision). The loops at D3 and B carry only flags and
+  the best key; the records (about 90 bits each) follow a clock later (D4, C) from the beat's
+  copy, so no wide mux hangs on a loop compare. The frame state is cleared by the ``first``
+  beat passing, so frames follow each other without a gap.
 
-At the frame's end the surface record (taken at D4) and the bottom record (at C) go to the same
-sub-sample divider as the one-lane design (:func:`hdl.peak_detect.load_divider`, ``divide``,
-``drive_result``).
+At the frame's end the surface record (taken at D4) and the bottom record (at C) go to the
+sub-sample divider (:func:`hdl.peak_detect.load_divider`, ``divide``, ``drive_result``).
 
 Measured (``albcap hdl synth --json --component albcap_peak_detect --param lanes=N``, ECP5-85
 speed 6): 8 lanes 96.5 MHz, 10 773 LUTs, 8 004 FFs, 2 DSPs, 772 MS/s; 12 lanes 85.8 MHz,
@@ -49,9 +49,9 @@ speed 6): 8 lanes 96.5 MHz, 10 773 LUTs, 8 004 FFs, 2 DSPs, 772 MS/s; 12 lanes 8
 from __future__ import annotations
 
 from functools import reduce
-from operator import or_
+from operator import and_, or_
 
-from amaranth.hdl import Array, Const, Module, Mux, Signal, signed, unsigned
+from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import data
 
 from model.matched_filter import OUT_WIDTH
@@ -61,12 +61,12 @@ from .peak_detect import (
     _KEY,
     _P_MAX_LOG2,
     _Y,
-    DIVIDE_STEPS,
     NOISE_MAX,
     NOISE_WIDTH,
     RESULT_LATENCY,
     SURFACE_LATENCY,
     THR_WIDTH,
+    THRESHOLD_BUBBLE,
     divide,
     divider_layout,
     drive_result,
@@ -90,23 +90,25 @@ def latencies(lanes: int) -> tuple[int, int, int]:
 
     surface
         From accepting the beat holding ``y[s + 1]`` to the surface message being valid, when
-        that beat does not wait for the threshold: one clock more than one lane (the accepting
-        register ``D1`` only holds the beat; the tests run from it into D2, D3 raises the
-        message).
+        that beat does not wait for the threshold (:data:`~hdl.peak_detect.SURFACE_LATENCY`:
+        the accepting register ``D1`` holds the beat, the compares run from it into D2a, their
+        conjunction into D2, D3 raises the message).
     result
         From accepting the frame's last beat to its result beat being valid, when the beat
-        does not wait: D2 to C is ``2 levels + 5`` clocks more than the one-lane decision.
+        does not wait: D1 to C is ``4 levels + 11`` clocks, then the divider's two loading
+        clocks, its steps and ``o.valid``.
     bubble
         The most clocks a beat waits in ``D1`` for its frame's threshold, counted as extra
-        latency: the mask stage, two trees of ``levels`` clocks, the sum, ``mu``,
-        ``|y - mu|``, the sum, ``noise``, two multiplier clocks, the partial-product sum,
-        ``thr``, the bound and the registered tag match (``thr_hit``), from the beat that
-        closes the noise window.
+        latency: the flag and mask stages, two trees of ``levels`` clocks, the sum, ``mu``,
+        ``y - mu``, its magnitude, the sum, the shift and the cap of ``noise``, two multiplier
+        clocks, the partial-product sum, ``thr``, the bound's sum and cap and the registered tag
+        match (into ``go``), from the beat that closes the noise window.
 
-    ``levels = ceil(log2(lanes))``: 4 lanes give ``(3, 23, 16)``, 8 lanes ``(3, 25, 18)``.
+    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 24, 16)``, 4 lanes ``(4, 32, 20)``,
+    8 lanes ``(4, 36, 22)``.
     """
     d = _levels(lanes)
-    return SURFACE_LATENCY + 1, RESULT_LATENCY + 2 * d + 5, 2 * d + 12
+    return SURFACE_LATENCY, RESULT_LATENCY + 4 * d, THRESHOLD_BUBBLE + 2 * d
 
 
 def _reg(m, value, shape, name, reset_less=False):
@@ -122,6 +124,14 @@ def _delay(m, value, n, name, shape=None):
     for i in range(n):
         taps.append(_reg(m, taps[-1], shape, f"{name}_{i + 1}"))
     return taps
+
+
+def _sub_sign(m, a, b, name):
+    """``a < b`` as the sign of ``a - b``: synthesis keeps a subtraction on the carry chain,
+    where it turned the compare into a chain of six LUTs (a worst path)."""
+    d = Signal(signed(max(len(a), len(b)) + 2), name=f"{name}_sub")
+    m.d.comb += d.eq(a - b)
+    return d[-1]
 
 
 def _sum_tree(m, values, name):
@@ -146,6 +156,14 @@ def elaborate(top, platform):
     L = top.lanes
     depth = _levels(L)
     cfg, d = top.cfg, top.i.payload
+    if L == 1:  # one lane's sample (FILTER_OUT) as a beat of one
+        one = d
+        k_shape = one.k.shape()
+        d = Signal(data.StructLayout({"y": data.ArrayLayout(_Y, 1),
+                                      "k": data.ArrayLayout(k_shape, 1),
+                                      "count": 1, "first": 1, "last": 1}), name="one_lane")
+        m.d.comb += [d.y[0].eq(one.y), d.k[0].eq(one.k), d.count.eq(1),
+                     d.first.eq(one.first), d.last.eq(one.last)]
     k_shape = d.k.shape().elem_shape
     rec = record_layout(k_shape)
 
@@ -163,7 +181,15 @@ def elaborate(top, platform):
         at_lanes(W + 2 * P, "dev_hi")
     mu_end, dev_end = at_lanes(W + P - 1, "mu_end"), at_lanes(W + 2 * P - 1, "dev_end")
     cand_at = at_lanes(W + 2 * P + 1, "cand_at")  # lane j: centre base + j - 1 >= W + 2P
-    need_at = _reg(m, W + 2 * P + 2, _POS, "need_at", True)  # the beat reaches W + 2P + 1
+    # A beat of c samples at base reaches W + 2P + 1 when base + c >= W + 2P + 2. A frame's
+    # first beat (base 0) does when c does (first_needs); any other beat follows a full beat
+    # of its frame, so the flags for it are registered as that beat is accepted: base_in + L
+    # + c >= W + 2P + 2, i.e. base_in >= need_at[c] (one compare each; the compares on the
+    # live beat, after an add, were the worst path twice).
+    need_at = [_reg(m, W + 2 * P + 2 - L - c, signed(_POS.width + 1), f"need_at{c}", True)
+               for c in range(L + 1)]
+    first_needs = [_reg(m, W + 2 * P + 2 <= c, 1, f"first_needs{c}", True)
+                   for c in range(L + 1)]
     ms_le = [_reg(m, cfg.min_sep <= j, 1, f"ms_le{j}", True) for j in range(2 * L)]
     # min_sep + j - 1 per lane, so that "c + min_sep" of a lane's centre is one add; capped
     # where no centre of a frame can reach it
@@ -179,10 +205,12 @@ def elaborate(top, platform):
     accept, go, free = Signal(), Signal(), Signal()
     tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # frame 0 gets tag 0
     n_next = Signal(_POS)  # samples of the frame accepted so far
+    next_needs = Signal(L + 1)  # per count, the next beat of the frame reaches W + 2P + 1
     base_in = Mux(d.first, 0, n_next)
     inb = Signal(held)  # the input beat with its place in the frame
     m.d.comb += [inb.beat.eq(d), inb.base.eq(base_in),
-                 inb.needs.eq(base_in + d.count >= need_at),  # it reaches W + 2P + 2
+                 inb.needs.eq(Mux(d.first, Array(first_needs)[d.count], next_needs.bit_select(
+                     d.count, 1))),
                  inb.tag.eq(Mux(d.first, tag + 1, tag))]
     skid, h1 = Signal(held), Signal(held)
     s_valid, d1_valid = Signal(), Signal()
@@ -190,7 +218,8 @@ def elaborate(top, platform):
     m.d.comb += [top.i.ready.eq(~s_valid), accept.eq(top.i.valid & ~s_valid),
                  free.eq(~d1_valid | go)]
     with m.If(accept):
-        m.d.sync += n_next.eq(base_in + d.count)
+        m.d.sync += [n_next.eq(base_in + d.count),
+                     next_needs.eq(Cat(base_in >= at for at in need_at))]
         with m.If(d.first):
             m.d.sync += tag.eq(tag + 1)
     loads = Signal()  # D1 takes a new beat (from the skid if it holds one)
@@ -203,37 +232,46 @@ def elaborate(top, platform):
     fresh = _reg(m, loads, 1, "fresh")  # D1 holds a beat not yet seen by the statistics
 
     # thr_tag: the frame whose threshold the registers below hold (one wider than a tag, so
-    # that its reset value matches no frame). thr_hit: it is D1's frame, a clock late (a
-    # frame's first beat entering D1 clears it, so it is never stale from the frame before).
+    # that its reset value matches no frame). "It is D1's frame" is known a clock late, so
+    # the clock a frame's first beat enters D1 it still speaks of the frame before: such a
+    # beat (fresh) does not go on it. Any other beat follows one of its own frame.
     thr_tag = Signal(TAG_WIDTH + 1, init=(1 << (TAG_WIDTH + 1)) - 1)
-    thr_hit = Signal()
-    with m.If(loads & Mux(s_valid, skid.beat.first, d.first)):
-        m.d.sync += thr_hit.eq(0)
-    with m.Else():
-        m.d.sync += thr_hit.eq(thr_tag == d1_tag)
-    # busy: a result is being divided or waits to be taken; a frame's last beat waits
+    # busy: a result is being divided or waits to be taken; a frame's last beat waits.
+    # go is a register, decided a clock ahead from what D1, the tag match, fresh and busy will be
+    # (the same function of them as it would be in its own clock): its fan-out to every D1
+    # enable then starts at a flip-flop. Decided in its own clock it was the worst path.
     busy, done = Signal(), Signal()
-    m.d.comb += go.eq(d1_valid & (~d1_needs | thr_hit) & (~d1.last | ~busy))
+    nxt = Signal(held, name="d1_next")
+    m.d.comb += nxt.eq(Mux(free, Mux(s_valid, skid.as_value(), inb.as_value()), h1.as_value()))
+    busy_nx = (go & d1.last) | (busy & ~(top.o.valid & top.o.ready))
+    m.d.sync += go.eq(Mux(free, s_valid | top.i.valid, d1_valid)
+                      & (~nxt.needs | ((thr_tag == d1_tag) & ~(loads & nxt.beat.first)))
+                      & (~nxt.beat.last | ~busy_nx))
 
     # ---- window statistics ----
-    # S1: lane masks. A lane holds sample base + j; lanes at or past count are empty.
+    # S0: the window flags per lane, from the beat's base (a lane holds sample base + j; lanes
+    # at or past count are empty); S1: the masked samples. Compares and the mask in one clock
+    # were a worst path.
     side = data.StructLayout({"valid": 1, "first": 1, "close_mu": 1, "close_dev": 1,
                               "tag": TAG_WIDTH})
-    s1 = Signal(side)
+    s0, s1 = Signal(side), Signal(side)
+    s0_y = Signal(data.ArrayLayout(_Y, L))
+    s0_mu, s0_dev = Signal(L), Signal(L)
     s1_mu = [Signal(_Y, name=f"s1_mu{j}") for j in range(L)]
     s1_y = Signal(data.ArrayLayout(_Y, L))
     s1_dev = Signal(L)
     close_mu, close_dev = [], []
     for j in range(L):
         used = Const(j) < d1.count
-        in_mu = used & (d1_base >= mu_lo[j]) & (d1_base < mu_hi[j])
-        m.d.sync += [s1_mu[j].eq(Mux(in_mu, d1.y[j], 0)),
-                     s1_dev[j].eq(used & (d1_base >= mu_hi[j]) & (d1_base < dev_hi[j]))]
+        m.d.sync += [s0_mu[j].eq(used & (d1_base >= mu_lo[j]) & (d1_base < mu_hi[j])),
+                     s0_dev[j].eq(used & (d1_base >= mu_hi[j]) & (d1_base < dev_hi[j]))]
         close_mu.append(used & (d1_base == mu_end[j]))
         close_dev.append(used & (d1_base == dev_end[j]))
-    m.d.sync += [s1_y.eq(d1.y), s1.valid.eq(fresh), s1.first.eq(d1.first),
-                 s1.close_mu.eq(reduce(or_, close_mu)), s1.close_dev.eq(reduce(or_, close_dev)),
-                 s1.tag.eq(d1_tag)]
+    m.d.sync += [s0_y.eq(d1.y), s0.valid.eq(fresh), s0.first.eq(d1.first),
+                 s0.close_mu.eq(reduce(or_, close_mu)), s0.close_dev.eq(reduce(or_, close_dev)),
+                 s0.tag.eq(d1_tag)]
+    m.d.sync += [s1_mu[j].eq(Mux(s0_mu[j], s0_y[j], 0)) for j in range(L)]
+    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), s1.eq(s0)]
     # the baseline tree, its running sum, then mu
     mu_tree = _sum_tree(m, s1_mu, "mu_tree")
     sd = _delay(m, s1, depth + 3, "side")  # sd[i]: the side band i clocks after S1
@@ -249,23 +287,26 @@ def elaborate(top, platform):
     dm = _delay(m, s1_dev, depth + 2, "dev_m")[-1]
     devs = []
     for j in range(L):
-        v = dy[j]
-        devs.append(_reg(m, Mux(dm[j], Mux(v >= mu, v - mu, mu - v), 0), unsigned(OUT_WIDTH + 1),
-                         f"dev{j}"))
+        # y - mu, then its magnitude a clock later (a subtract, a compare and a negation in one
+        # clock were a worst path)
+        diff = _reg(m, Mux(dm[j], dy[j] - mu, 0), signed(OUT_WIDTH + 1), f"dev_diff{j}")
+        devs.append(_reg(m, Mux(diff < 0, -diff, diff), unsigned(OUT_WIDTH + 1), f"dev{j}"))
     dev_tree = _sum_tree(m, devs, "dev_tree")
-    sd2 = _delay(m, sd[depth + 3], depth, "side_dev")
-    t = sd2[depth]  # the side band of the beat at the dev tree's root
+    sd2 = _delay(m, sd[depth + 3], depth + 1, "side_dev")
+    t = sd2[depth + 1]  # the side band of the beat at the dev tree's root
     dev_sum = Signal(unsigned(OUT_WIDTH + 1 + _P_MAX_LOG2))
     with m.If(t.valid):
         m.d.sync += dev_sum.eq(Mux(t.first, 0, dev_sum) + dev_tree)
     dev_closed = _reg(m, t.valid & t.close_dev, 1, "dev_closed")
     dev_tag = _reg(m, t.tag, TAG_WIDTH, "dev_tag")
+    # noise = min(dev_sum >> noise_log2, NOISE_MAX): the shift, then the cap a clock later
     noise = Signal(NOISE_WIDTH)
-    noise_full = dev_sum >> cfg.noise_log2
-    with m.If(dev_closed):
+    noise_full = _reg(m, dev_sum >> cfg.noise_log2, dev_sum.shape(), "noise_full")
+    full_new = _reg(m, dev_closed, 1, "noise_full_new")
+    with m.If(full_new):
         m.d.sync += noise.eq(Mux(noise_full > NOISE_MAX, NOISE_MAX, noise_full))
-    noise_new = _reg(m, dev_closed, 1, "noise_new")
-    noise_tag = _reg(m, dev_tag, TAG_WIDTH, "noise_tag")
+    noise_new = _reg(m, full_new, 1, "noise_new")
+    noise_tag = _delay(m, dev_tag, 2, "noise_tag")[-1]
     # k_thr_q4 * noise: the DSP blocks' own registers, two clocks, then the partial sum
     k_shape_s = signed(len(cfg.k_thr_q4) + 1)
     mul_lo = m.submodules.thr_mul_lo = RegisteredMultiplier(k_shape_s, signed(_LO_BITS + 1))
@@ -283,38 +324,46 @@ def elaborate(top, platform):
         m.d.sync += thr.eq(Mux(prod_thr > cfg.min_thr, prod_thr, cfg.min_thr))
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
     # each lane makes one 24-bit compare
+    # (the sum, then the cap a clock later)
     bound = Signal(_Y)
-    total = mu + thr
-    thr_new = _reg(m, prod_new, 1, "thr_new")
-    thr_tag_d = _reg(m, prod_tag, TAG_WIDTH, "thr_tag_d")
-    with m.If(thr_new):
-        m.d.sync += [bound.eq(Mux(total > _Y_HI, _Y_HI, total)), thr_tag.eq(thr_tag_d)]
+    total = _reg(m, mu + thr, signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1), "bound_total")
+    total_new = _delay(m, prod_new, 2, "bound_new")[-1]
+    total_tag = _delay(m, prod_tag, 2, "bound_tag")[-1]
+    with m.If(total_new):
+        m.d.sync += [bound.eq(Mux(total > _Y_HI, _Y_HI, total)), thr_tag.eq(total_tag)]
 
     # ---- D2: the local-maximum tests per lane, as the beat leaves D1 ----
     y1, y2 = Signal(_Y), Signal(_Y)  # the last two samples of the previous beat
     k1, k2 = Signal(k_shape), Signal(k_shape)
-    with m.If(go):
-        m.d.sync += [y2.eq(d1.y[L - 2]), y1.eq(d1.y[L - 1]),
-                     k2.eq(d1.k[L - 2]), k1.eq(d1.k[L - 1])]
     ev = [y2, y1] + [d1.y[j] for j in range(L)]
     kv = [k2, k1] + [d1.k[j] for j in range(L)]
+    with m.If(go):
+        m.d.sync += [y2.eq(ev[L]), y1.eq(ev[L + 1]), k2.eq(kv[L]), k1.eq(kv[L + 1])]
     beat = data.StructLayout({"e": data.ArrayLayout(_Y, L + 2),
                               "ke": data.ArrayLayout(k_shape, L + 2),
                               "base": _POS, "first": 1, "last": 1, "long": 1,
                               "tag": TAG_WIDTH})
-    d2 = Signal(beat)
-    d2_valid = _reg(m, go, 1, "d2_valid")
-    d2_peak = Signal(L)
-    d2_cpos = [Signal(_POS, name=f"d2_cpos{j}") for j in range(L)]  # centre base + j - 1
+    # D2a registers the compares of each lane, D2 their conjunction (compares and the
+    # six-input AND in one clock were a worst path)
+    d2a = Signal(beat)
+    d2a_valid = _reg(m, go, 1, "d2a_valid")
+    tests = []
+    d2a_cpos = [Signal(_POS, name=f"d2a_cpos{j}") for j in range(L)]  # centre base + j - 1
     for j in range(L):
         a, b, c = ev[j], ev[j + 1], ev[j + 2]
-        peak = ((a < b) & (b >= c) & (kv[j] == kv[j + 2]) & (Const(j) < d1.count)
-                & (d1_base >= cand_at[j]) & (b > bound))
-        m.d.sync += [d2_peak[j].eq(peak), d2_cpos[j].eq(d1_base + (j - 1))]
-    m.d.sync += [d2.e[j].eq(v) for j, v in enumerate(ev)]
-    m.d.sync += [d2.ke[j].eq(v) for j, v in enumerate(kv)]
-    m.d.sync += [d2.base.eq(d1_base), d2.first.eq(d1.first), d2.last.eq(d1.last),
-                 d2.long.eq(d1_needs), d2.tag.eq(d1_tag)]
+        lane = [a < b, b >= c, kv[j] == kv[j + 2], (Const(j) < d1.count) & (d1_base >= cand_at[j]),
+                b > bound]
+        tests.append([_reg(m, t, 1, f"d2a_t{j}_{i}") for i, t in enumerate(lane)])
+        m.d.sync += d2a_cpos[j].eq(d1_base + (j - 1))
+    m.d.sync += [d2a.e[j].eq(v) for j, v in enumerate(ev)]
+    m.d.sync += [d2a.ke[j].eq(v) for j, v in enumerate(kv)]
+    m.d.sync += [d2a.base.eq(d1_base), d2a.first.eq(d1.first), d2a.last.eq(d1.last),
+                 d2a.long.eq(d1_needs), d2a.tag.eq(d1_tag)]
+    d2 = _reg(m, d2a, beat, "d2")
+    d2_valid = _reg(m, d2a_valid, 1, "d2_valid")
+    d2_peak = Signal(L)
+    m.d.sync += [d2_peak[j].eq(reduce(and_, tests[j])) for j in range(L)]
+    d2_cpos = [_reg(m, v, _POS, f"d2_cpos{j}") for j, v in enumerate(d2a_cpos)]
 
     def lane_record(bt, j, n):
         r = Signal(rec, name=f"lane_rec{j}")
@@ -357,9 +406,9 @@ def elaborate(top, platform):
                                                            for j in range(L)])),
                      top.surface.payload.tag.eq(d2.tag)]
 
-    # the beat's samples travel with it to C (stage 2 depth + 5 after D2)
-    bd = _delay(m, d2, 2 * depth + 5, "beat")
-    vd = _delay(m, d2_valid, 2 * depth + 5, "valid")
+    # the beat's samples travel with it to C (stage 2 depth + 6 after D2)
+    bd = _delay(m, d2, 4 * depth + 8, "beat")
+    vd = _delay(m, d2_valid, 4 * depth + 8, "valid")
 
     # D4: s + min_sep and the surface's record; at the frame's last beat, the snapshot for
     # the divider (s_found already holds the frame's final answer)
@@ -380,70 +429,112 @@ def elaborate(top, platform):
     # ---- rule 2: the minimum of y from the surface on, across the lanes ----
     # A segmented prefix minimum (Hillis-Steele, one level per clock): the surface's lane
     # starts a segment (flag), so lanes from it on see the minimum from the surface only.
+    # Each level takes two clocks, the compares and then the selects (both in one clock were
+    # the worst path at two lanes).
     pm = [bd[1].e[j + 1] for j in range(L)]
     seg = [d3_new[j] for j in range(L)]
     for lev in range(depth):
         step = 1 << lev
-        pm_nx, seg_nx = [], []
-        for j in range(L):
-            if j < step:
-                v, f = pm[j], seg[j]
-            else:
-                v = Mux(seg[j] | (pm[j] < pm[j - step]), pm[j], pm[j - step])
-                f = seg[j] | seg[j - step]
-            pm_nx.append(_reg(m, v, _Y, f"pm{lev + 1}_{j}"))
-            seg_nx.append(_reg(m, f, 1, f"seg{lev + 1}_{j}"))
-        pm, seg = pm_nx, seg_nx
-    elig = _delay(m, d3_elig, depth, "elig")
-    # V: the running minimum carried from beat to beat (the loop is one compare); lanes in
-    # the surface's segment do not take it (it belongs to the frame before the surface)
+        take = [_reg(m, seg[j] | (pm[j] < pm[j - step]) if j >= step else 1, 1,
+                     f"pmt{lev + 1}_{j}") for j in range(L)]
+        pm_c = [_reg(m, v, _Y, f"pmc{lev + 1}_{j}") for j, v in enumerate(pm)]
+        seg_c = [_reg(m, seg[j] | seg[j - step] if j >= step else seg[j], 1,
+                      f"segc{lev + 1}_{j}") for j in range(L)]
+        pm = [_reg(m, Mux(take[j], pm_c[j], pm_c[j - step]) if j >= step else pm_c[j], _Y,
+                   f"pm{lev + 1}_{j}") for j in range(L)]
+        seg = [_reg(m, f, 1, f"seg{lev + 1}_{j}") for j, f in enumerate(seg_c)]
+    elig = _delay(m, d3_elig, 2 * depth + 1, "elig")
+    # V: the running minimum vmin carried from beat to beat; lanes in the surface's segment do
+    # not take it (it belongs to the frame before the surface). A compare and a select in one
+    # loop clock were the worst path, so the loop takes two: L compares, U selects. Each lane
+    # needs min(vmin, P', pm) with P' the previous beat's minimum: L compares the three pairs
+    # against vmin as it stands (x, kept) and P'; U selects. At L, vmin holds at least every
+    # beat up to two before (U of the beat before may land at the same edge) and P' is the
+    # one before, so the minimum is the one from the surface on either way. Lanes whose
+    # segment starts in this beat take pm, those of the beat after the surface's min(P', pm).
+    p_prev, s_prev = Signal(_Y), Signal()  # P' and whether the surface's segment is in it
     vmin = Signal(_Y)
-    with m.If(vd[depth + 1]):
-        m.d.sync += vmin.eq(Mux(seg[-1] | (pm[-1] < vmin), pm[-1], vmin))
-    run_min = [_reg(m, Mux(seg[j] | (pm[j] < vmin), pm[j], vmin), _Y, f"run_min{j}")
-               for j in range(L)]
+    with m.If(vd[2 * depth + 1]):
+        m.d.sync += [p_prev.eq(pm[-1]), s_prev.eq(seg[-1])]
+    x = _reg(m, vmin, _Y, "vx")
+    pl = _reg(m, p_prev, _Y, "vp")
+    sel = []
+    for j in range(L):
+        pm_lt_p = _reg(m, pm[j] < p_prev, 1, f"vc{j}")
+        pm_lt_x = _reg(m, pm[j] < vmin, 1, f"va{j}")
+        p_lt_x = _reg(m, p_prev < vmin, 1, f"vb{j}")
+        pm_l = _reg(m, pm[j], _Y, f"vpm{j}")
+        seg_l, near = _reg(m, seg[j], 1, f"vs{j}"), _reg(m, s_prev, 1, f"vn{j}")
+        take_pm = seg_l | (pm_lt_p & (near | pm_lt_x))
+        take_p = ~seg_l & ~pm_lt_p & (near | p_lt_x)
+        sel.append(Mux(take_pm, pm_l, Mux(take_p, pl, x)))
+    with m.If(vd[2 * depth + 2]):
+        m.d.sync += vmin.eq(sel[-1])
+    run_min = [_reg(m, sel[j], _Y, f"run_min{j}") for j in range(L)]
     elig_v = _reg(m, elig[-1], L, "elig_v")
     # R: the key per lane; K: eligible and, for rule 2, rising above thr
-    bt = bd[depth + 2]
+    bt = bd[2 * depth + 3]
     keys = []
     for j in range(L):
         b = bt.e[j + 1]
         keys.append(_reg(m, Mux(cfg.bottom_rule == 0, j,
                                 Mux(cfg.bottom_rule == 1, b, b - run_min[j])), _KEY, f"key{j}"))
-    elig_r = _reg(m, elig_v, L, "elig_r")
+    # (the rise's compare with thr registered on its own: with the AND into ok it was a worst
+    # path)
+    # against thr capped at the largest key, registered once per frame (the 33-bit compare
+    # with the 32-bit thr was the next worst path)
+    key_hi = (1 << (_KEY.width - 1)) - 1
+    thr_k = _reg(m, Mux(thr > key_hi, key_hi, thr), unsigned(_KEY.width - 1), "thr_k")
+    over = [_reg(m, (cfg.bottom_rule != 2) | _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1,
+                 f"key_over{j}") for j in range(L)]
+    keys = [_reg(m, k, _KEY, f"key_k{j}") for j, k in enumerate(keys)]
+    elig_r = _delay(m, elig_v, 2, "elig_r")[-1]
     node = data.StructLayout({"ok": 1, "key": _KEY, "idx": range(L)})
     level = []
     for j in range(L):
         nd = Signal(node, name=f"leaf{j}")
-        m.d.sync += [nd.ok.eq(elig_r[j] & ((cfg.bottom_rule != 2) | (keys[j] > thr))),
-                     nd.key.eq(keys[j]), nd.idx.eq(j)]
+        m.d.sync += [nd.ok.eq(elig_r[j] & over[j]), nd.key.eq(keys[j]), nd.idx.eq(j)]
         level.append(nd)
     # the max-tree: the later lane wins only with a larger key (earliest on a tie; rule 0's
     # key is the lane, so the latest eligible lane wins)
+    # (two clocks a level: the compare, then the select)
     for lev in range(depth):
         nxt = []
         for j in range(0, len(level), 2):
             nd = Signal(node, name=f"max{lev + 1}_{j // 2}")
             if j + 1 < len(level):
                 lo, hi = level[j], level[j + 1]
-                right = hi.ok & (~lo.ok | (hi.key > lo.key))
-                m.d.sync += nd.eq(Mux(right, hi.as_value(), lo.as_value()))
+                right = _reg(m, hi.ok & (~lo.ok | (hi.key > lo.key)), 1,
+                             f"maxr{lev + 1}_{j // 2}")
+                lo_c = _reg(m, lo, node, f"maxlo{lev + 1}_{j // 2}")
+                hi_c = _reg(m, hi, node, f"maxhi{lev + 1}_{j // 2}")
+                m.d.sync += nd.eq(Mux(right, hi_c.as_value(), lo_c.as_value()))
             else:
-                m.d.sync += nd.eq(level[j])
+                m.d.sync += nd.eq(_reg(m, level[j], node, f"maxc{lev + 1}_{j // 2}"))
             nxt.append(nd)
         level = nxt
     win = level[0]
 
     # ---- B: the bottom, against the frame's best so far ----
-    # The loop carries found and the best key; the record follows a clock later (C).
+    # The loop carries found and the best key; the record follows a clock later (C). A
+    # compare in the loop's clock was a worst path, so B1 compares and B2 decides: B1 sees
+    # best as it stands (at least every beat up to two before: B2 of the beat before may land
+    # at the same edge) and the key of the beat before (pkey). If the beat before took the
+    # best, its key is the best (gt_p); if not, best was already right at B1 (gt_x). When the
+    # beat before is another frame's, this beat is its frame's first and needs no compare.
+    b_found, best, pkey = Signal(), Signal(_KEY), Signal(_KEY)
+    gt_x = _reg(m, _sub_sign(m, best, win.key, "b_gt_x"), 1, "b_gt_x")
+    gt_p = _reg(m, _sub_sign(m, pkey, win.key, "b_gt_p"), 1, "b_gt_p")
+    with m.If(vd[-3]):
+        m.d.sync += pkey.eq(win.key)
+    win = _reg(m, win, node, "win_b2")
     bt, b_valid = bd[-2], vd[-2]
-    b_found, best = Signal(), Signal(_KEY)
     found_b = b_found & ~bt.first
-    take = Signal()
-    m.d.comb += take.eq(b_valid & win.ok
-                        & ((cfg.bottom_rule == 0) | ~found_b | (win.key > best)))
+    take, took_prev = Signal(), Signal()
+    m.d.comb += take.eq(b_valid & win.ok & ((cfg.bottom_rule == 0) | ~found_b
+                                            | Mux(took_prev, gt_p, gt_x)))
     with m.If(b_valid):
-        m.d.sync += b_found.eq(found_b | take)
+        m.d.sync += [b_found.eq(found_b | take), took_prev.eq(take)]
     with m.If(take):
         m.d.sync += best.eq(win.key)
     recs = Array(lane_record(bt, j, bt.base + (j - 1)).as_value() for j in range(L))
@@ -463,8 +554,6 @@ def elaborate(top, platform):
     fin_mu, fin_noise, fin_thr = Signal(_Y), Signal(NOISE_WIDTH), Signal(THR_WIDTH)
     fins = [Signal(divider_layout(k_shape), name="fin_s"),
             Signal(divider_layout(k_shape), name="fin_b")]
-    step = Signal(range(DIVIDE_STEPS + 1))
-    run = Signal()
     with m.If(top.o.valid & top.o.ready):
         m.d.sync += [busy.eq(0), done.eq(0), top.o.valid.eq(0)]
     with m.If(go & d1.last):
@@ -473,9 +562,7 @@ def elaborate(top, platform):
         m.d.sync += [busy.eq(1), done.eq(0),
                      fin_mu.eq(Mux(d1_needs, mu, 0)), fin_noise.eq(Mux(d1_needs, noise, 0)),
                      fin_thr.eq(Mux(d1_needs, thr, cfg.min_thr))]
-    with m.If(end_valid):
-        m.d.sync += [run.eq(1), step.eq(DIVIDE_STEPS)]
-        load_divider(m, fins, (s_fin, b_fin), end_long)
-    divide(m, fins, run, step, done, top.o.valid)
+    divide(m, fins, load_divider(m, fins, (s_fin, b_fin), end_long, end_valid), done,
+           top.o.valid)
     drive_result(m, top.o.payload, fin_mu, fin_noise, fin_thr, fins)
     return m

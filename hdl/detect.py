@@ -12,9 +12,10 @@ detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one per pip
 a stall holds them, it never adds any), so by then the filter has accepted samples up to
 ``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of them before the surface
 was known. They must all still use template 0, so the join is exact for
-``bin_offset >= LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1 = 11 + 2 + 2 + 1 = 16``: the
-register's floor, with no slack. Tested at ``bin_offset = 16`` with surfaces on plain, idle and
-back-pressured traffic.
+``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (17 at one
+lane), below the register's floor of 24 (the slack is there for pipeline stages bought for
+speed). Tested at the floor with surfaces on plain, idle and back-pressured traffic, and with
+more lanes at ``min_bin_offset`` itself (``tests/test_hdl_detect_lanes.py``).
 """
 
 from __future__ import annotations
@@ -69,18 +70,19 @@ class FilterDetect(wiring.Component):
         ``K`` and ``L`` of the bank.
 
     min_bin_offset : int
-        The join is exact for ``bin_offset >= min_bin_offset`` (16 at one lane, the register's
-        floor; ``lanes x (filter latency + surface latency + SURFACE_APPLY) + 1`` in general,
-        ``MatchedFilter.max_unsurfaced``). A bank for a multi-lane build must respect it.
+        The join is exact for ``bin_offset >= min_bin_offset`` (:data:`MIN_BIN_OFFSET` at one
+        lane, below the register's floor; ``lanes x (filter latency + surface latency +
+        SURFACE_APPLY) + 1`` in general, ``MatchedFilter.max_unsurfaced``). A bank for a
+        multi-lane build must respect it.
     frame_gap_clocks : int
         Clocks per frame beyond its ``ceil(N / lanes)`` beats (the detector's threshold wait).
 
     Notes
     -----
-    Latency: ``y`` as the filter (``LATENCY`` = 11 clocks); the result ``RESULT_LATENCY`` = 14
-    clocks after the frame's last ``y``. The fork passes a beat when both ``y`` and the detector
-    take it, so ``y`` backpressure stalls the detector and the detector's frame-end wait stalls
-    ``y``.
+    Latency: ``y`` as the filter (``LATENCY`` clocks); the result the detector's
+    ``result_latency`` after the frame's last ``y`` (more when it waits). The fork passes a
+    beat when both ``y`` and the detector take it, so ``y`` backpressure stalls the detector
+    and the detector's waits (threshold, frame end) stall ``y``.
     """
 
     def __init__(self, lanes: int = 1, taps_max: int = L_MAX):

@@ -13,7 +13,18 @@ contribute nothing whatever the memory holds there.
 
 from __future__ import annotations
 
-from amaranth.hdl import ClockSignal, Elaboratable, Instance, Module, Mux, Signal, signed, unsigned
+from amaranth.hdl import (
+    Cat,
+    ClockSignal,
+    Const,
+    Elaboratable,
+    Instance,
+    Module,
+    Mux,
+    Signal,
+    signed,
+    unsigned,
+)
 from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -46,7 +57,7 @@ N_WIDTH = by_name("gate_len").width
 #: below half the tag range, so "older" and "newer" are told apart modulo ``2^TAG_WIDTH``.
 TAG_WIDTH = 8
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
-LATENCY = 11
+LATENCY = 15
 
 #: Clock edges from the one that takes a surface message to the first one whose accepted sample
 #: uses it (the template compares are made a clock ahead; see :class:`MatchedFilter`).
@@ -122,11 +133,12 @@ def frame_tags(n_frames: int) -> list[int]:
     return [f % (1 << TAG_WIDTH) for f in range(n_frames)]
 
 
-def _flow_control(m: Module, c, capacity: int):
+def _flow_control(m: Module, c, capacity: int, hold_nx=None):
     """Admission of a free-running pipeline that ends in an output buffer of ``capacity``.
 
     Returns ``(accept, take, accept_dl)``: a beat accepted at ``c.i``, taken at ``c.o``, and a
-    copy of ``accept`` for the delay line's enables.
+    copy of ``accept`` for the delay line's enables. ``hold_nx`` (optional), when high, keeps
+    ``c.i.ready`` low at the next clock, besides a full pipeline and a coefficient write.
     """
     # The pipeline runs free (no clock enable: a stall signal fanned out to every register
     # was the longest path) and ends in a small output buffer with a bypass. `inflight`
@@ -151,8 +163,12 @@ def _flow_control(m: Module, c, capacity: int):
     ]
     inflight_nx = Signal.like(inflight)
     m.d.comb += inflight_nx.eq(inflight + accept - take)
-    m.d.sync += [inflight.eq(inflight_nx), room.eq(inflight_nx < capacity),
-                 full.eq(inflight_nx >= capacity)]
+    # a hold goes into the two registers, not beside them: accept, which fans out to the
+    # frame state, keeps its three inputs
+    stop = inflight_nx >= capacity
+    if hold_nx is not None:
+        stop = stop | hold_nx
+    m.d.sync += [inflight.eq(inflight_nx), room.eq(~stop), full.eq(stop)]
     return accept, take, accept_dl
 
 
@@ -181,16 +197,30 @@ def _saturation_bounds(m: Module, sh, acc_width: int):
     return over_at, under_at
 
 
-def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = ""):
+def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
+                    split: bool = False):
     """``y = sat_24(round_shift(acc, sh))`` two clocks after ``acc`` (shift and compares, then
-    round and mux)."""
+    round and mux); with ``split``, three (the shift by the multiple of 8 in ``sh`` and the
+    compares, the rest of the shift, then round and mux)."""
     t = Signal(signed(len(acc) + 1), name=f"{prefix}t")
     over, under = Signal(name=f"{prefix}over"), Signal(name=f"{prefix}under")
     t_low = t[:OUT_WIDTH + 1] + 1
-    m.d.sync += [
-        t.eq((acc << 1) >> sh), over.eq(acc >= over_at), under.eq(acc < under_at),
-        y.eq(Mux(over, _Y_HI, Mux(under, _Y_LO, t_low[1:]))),
-    ]
+    if split:
+        # a 32-way shift is a 32:1 mux per bit, five levels of logic and their routes (6.2 ns
+        # at one lane); in two stages each is a 4:1 or an 8:1 mux. The low bits of sh travel
+        # with the partial shift, so a sample is shifted by one out_shift throughout.
+        t8 = Signal.like(t, name=f"{prefix}t8")
+        sh_lo = Signal(3, name=f"{prefix}sh_lo")
+        over8, under8 = Signal(name=f"{prefix}over8"), Signal(name=f"{prefix}under8")
+        m.d.sync += [
+            t8.eq((acc << 1) >> Cat(Const(0, 3), sh[3:])), sh_lo.eq(sh[:3]),
+            over8.eq(acc >= over_at), under8.eq(acc < under_at),
+            t.eq(t8 >> sh_lo), over.eq(over8), under.eq(under8),
+        ]
+    else:
+        m.d.sync += [t.eq((acc << 1) >> sh), over.eq(acc >= over_at),
+                     under.eq(acc < under_at)]
+    m.d.sync += y.eq(Mux(over, _Y_HI, Mux(under, _Y_LO, t_low[1:])))
 
 
 def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take):
@@ -205,12 +235,48 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take):
     ]
     pop = take & any_held  # the head leaves; the rest move down one entry
     push = pipe_valid & ~(take & ~any_held)  # the pipeline's sample is kept
-    base = Signal.like(held)  # where a pushed sample lands
-    m.d.comb += base.eq(held - pop)
+    # No arithmetic after the handshake: `held - pop + push` and its zero test were two carry
+    # chains between `o.ready` and `any_held` (6.9 ns). The count is decoded from its register,
+    # and the handshake only chooses between decoded flags and precomputed held +/- 1.
+    held_is = [Signal(name=f"held_is{i}") for i in range(capacity + 1)]
+    m.d.comb += [held_is[i].eq(held == i) for i in range(capacity + 1)]
     for i in range(capacity):
         moved = Mux(pop, buf[i + 1] if i + 1 < capacity else 0, buf[i])
-        m.d.sync += buf[i].eq(Mux(push & (base == i), pipe, moved))
-    m.d.sync += [held.eq(base + push), any_held.eq((base + push) != 0)]
+        lands = Mux(pop, held_is[i + 1], held_is[i])  # held - pop == i
+        m.d.sync += buf[i].eq(Mux(push & lands, pipe, moved))
+    held_up, held_down = Signal.like(held), Signal.like(held)
+    m.d.comb += [held_up.eq(held + 1), held_down.eq(held - 1)]
+    m.d.sync += [
+        held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
+        any_held.eq(push | (~held_is[0] & ~held_is[1]) | (held_is[1] & ~pop)),
+    ]
+
+
+def _coef_chain(m: Module, coef, groups: int):
+    """The coefficient writes as a chain of ``groups`` registered links, link ``g`` a clock
+    after link ``g - 1`` (link 0 a clock after ``coef``), and the hold that keeps samples out
+    until a write has passed the last link. Returns ``(links, hold_nx)``: samples are held off
+    at the clock after one where ``hold_nx`` is high.
+    """
+    # One write bus to all the coefficient memories was their only wide shared net, and the
+    # placer kept the 64 of them together by it, far from their DSP blocks (4.6 ns of route
+    # into the multipliers). A link per tap group leaves each memory one wide net, the one to
+    # its own DSP. A chain rather than a tree of copies: its links hold different values, so
+    # synthesis cannot merge them back into one.
+    link_shape = data.StructLayout({"valid": unsigned(1), **dict(COEF_WRITE.members)})
+    links = [Signal(link_shape, name=f"wlink{g}") for g in range(groups)]
+    m.d.sync += [links[0].valid.eq(coef.valid & coef.ready),
+                 links[0].addr.eq(coef.payload.addr), links[0].data.eq(coef.payload.data)]
+    m.d.sync += [links[g].eq(links[g - 1]) for g in range(1, groups)]
+    # A write taken at edge e reaches the last group's memory at edge e + groups; a sample
+    # reads its coefficients in the second clock after it is accepted, so none is accepted at
+    # edges e + 1 .. e + groups - 2 (edge e itself is held off by coef.valid).
+    left = Signal(range(groups))
+    with m.If(coef.valid):
+        m.d.sync += left.eq(groups - 2)
+    with m.Elif(left != 0):
+        m.d.sync += left.eq(left - 1)
+    return links, coef.valid | (left > 1)
 
 
 class RegisteredMultiplier(Elaboratable):
@@ -328,8 +394,9 @@ class MatchedFilter(wiring.Component):
         ahead of the samples.
     coef : In(stream.Signature(COEF_WRITE))
         Coefficient writes ``h[k][j]`` at ``addr = k * L_MAX + j``. A write takes priority over
-        samples: ``i.ready`` is low on its clock. Write the bank between frames (a sample reads
-        its coefficients one clock after it is accepted; see Notes).
+        samples: ``i.ready`` is low on its clock (and, at one lane, on the 14 after, while it
+        travels to the memories; see Notes). Write the bank between frames (a sample reads its
+        coefficients two clocks after it is accepted).
     cfg : In(config_signature("filter"))
         ``out_shift``, ``bin_offset``, ``bin_len``.
     templates : In(unsigned(5))
@@ -339,17 +406,21 @@ class MatchedFilter(wiring.Component):
 
     Notes
     -----
-    Latency :data:`LATENCY` = 11 clocks, all registered: (1) delay line and template index;
-    (2) the multiplier inputs (sample, and the coefficient read from LUT RAM with that index);
-    (3) the ``L_MAX`` products (2 and 3 are a :class:`RegisteredMultiplier`, the ECP5 DSP
-    block's own registers); (4 to 9) the adder tree, one two-input level per stage (64 to 1);
-    (10) the shift ``(2 acc) >> out_shift`` and the saturation compares; (11) round half up
-    and saturate, the pipeline's last register. One sample per clock sustained while
-    ``o.ready`` is high. The pipeline never stalls: it ends in an output buffer of
-    ``LATENCY + 1`` entries (bypassed when empty), and ``i.ready`` (registered, no path from
-    ``o.ready``) is low while ``LATENCY + 1`` accepted samples are not yet taken at ``o``, so
-    at most that many sit between input and consumer, as in a stalled pipeline of ``LATENCY``
-    registers. ``i.ready`` is also low on a clock with a coefficient write.
+    Latency :data:`LATENCY` = 15 clocks, all registered: (1) the sample and the template index;
+    (2) the sample again and the index's copies, one per group of four taps; (3) the delay line,
+    and the coefficients read from LUT RAM with those copies; (4) the multiplier inputs; (5) the
+    ``L_MAX`` products (4 and 5 are a :class:`RegisteredMultiplier`, the ECP5 DSP block's own
+    registers); (6) the products again, in logic; (7 to 12) the adder tree, one two-input level
+    per stage (64 to 1); (13) the shift ``(2 acc) >> (out_shift & 24)`` and the saturation
+    compares; (14) the rest of the shift, ``>> (out_shift & 7)``; (15) round half up and
+    saturate, the pipeline's last register. One sample per clock sustained while ``o.ready`` is
+    high. The pipeline never stalls: it ends in an output buffer of ``LATENCY + 1`` entries
+    (bypassed when empty), and ``i.ready`` (registered, no path from ``o.ready``) is low while
+    ``LATENCY + 1`` accepted samples are not yet taken at ``o``, so at most that many sit
+    between input and consumer, as in a stalled pipeline of ``LATENCY`` registers. ``i.ready``
+    is also low on a clock with a coefficient write and the 14 after: a write travels a chain of
+    registers, one per group of four taps, and reaches the last group's memories 16 clocks after
+    it was taken (so that no bus is shared by all 64).
 
     Template selection counts samples, with no divider: when the frame reaches sample
     ``s + bin_offset`` it switches to template 1 (``min(1, K - 1)``), then one template further
@@ -360,11 +431,11 @@ class MatchedFilter(wiring.Component):
 
     Known failure modes: a surface that arrives too late (its switch sample already accepted)
     leaves template 0 for the rest of the frame. Register changes act on samples accepted from
-    the next clock on (``bin_len`` from the one after, as its compare is made ahead;
-    ``out_shift`` from the shift stage on, its saturation bounds a clock before). Coefficients
-    are read one clock after a sample is accepted: write the bank between frames, with the
-    pipeline's first stage empty. Frames longer than ``2^N_WIDTH - 1`` samples wrap the sample
-    counter.
+    the next clock on (``bin_len`` at the first bin that starts on a sample accepted a clock
+    after that, as bins are counted down from it; ``out_shift`` from the shift stage on, its
+    saturation bounds a clock before). Coefficients are read two clocks after a sample is
+    accepted: write the bank between frames, with the pipeline's first stages empty. Frames
+    longer than ``2^N_WIDTH - 1`` samples wrap the sample counter.
     """
 
     def __init__(self, lanes: int = 1, taps_max: int = L_MAX):
@@ -429,15 +500,20 @@ class MatchedFilter(wiring.Component):
         # buffer, and holds no more samples between the input and the consumer than a stalled
         # pipeline of LATENCY registers did (the surface feedback bound counts on that).
         capacity = LATENCY + 1
-        accept, take, accept_dl = _flow_control(m, self, capacity)
+        groups = min(K_MAX, L_MAX)  # tap groups, each with its template copy and write link
+        wlink, whold = _coef_chain(m, self.coef, groups)
+        accept, take, accept_dl = _flow_control(m, self, capacity, hold_nx=whold)
 
         # ---- frame state: sample counter, tag, surface, template ----
         # The template of an accepted sample must be a few LUTs from registers (it fans out to
         # every coefficient memory), so the compares it needs are made one clock ahead, for
         # "the next sample, if it does not start a frame": `match` (it is the switch sample
-        # s + bin_offset) and `bin_end` (its bin is full). For that, `n1` and `cnt1` hold
-        # n + 1 and cnt + 1, and a surface taken at one edge (`s_pend`) enters the compare
-        # from the next: it acts on samples accepted SURFACE_APPLY = 2 edges on.
+        # s + bin_offset) and `bin_end` (its bin is full). For that, `n1` holds n + 1, and a
+        # surface taken at one edge (`s_pend`) enters the compare from the next: it acts on
+        # samples accepted SURFACE_APPLY = 2 edges on. `bin_end` needs no compare: the bin is
+        # counted down in `left` (samples still to come in it, minus one), and a full bin is
+        # the sign of `left`; `left1` = left - 1 is the next value and its sign the next flag,
+        # so the accepted sample only chooses between register bits.
         n = Signal(N_WIDTH)  # index of the next sample of the frame
         n1 = Signal(N_WIDTH, init=1)  # n + 1 (modulo 2^N_WIDTH, as n)
         tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # so the first frame is tag 0
@@ -445,9 +521,14 @@ class MatchedFilter(wiring.Component):
         start = Signal(N_WIDTH + 1 + by_name("bin_offset").width)  # s + bin_offset
         active = Signal()  # k(n) >= 1 territory reached (n >= start)
         k = Signal(_K_SHAPE)  # template of the last accepted sample
-        cnt = Signal(by_name("bin_len").width + 1)  # samples in the current bin so far
-        cnt1 = Signal.like(cnt)  # cnt + 1
-        match, bin_end = Signal(), Signal()
+        left = Signal(signed(by_name("bin_len").width + 1))  # bin_len - 1 - samples in the bin
+        left1 = Signal.like(left)  # left - 1
+        match = Signal()
+        bin_end = left[-1]  # the bin is full (left = -1)
+        # the values of `left` and `left1` after a bin's first sample (bin_len >= 1), a clock
+        # after bin_len
+        len_m2, len_m3 = Signal.like(left), Signal.like(left)
+        m.d.sync += [len_m2.eq(cfg.bin_len - 2), len_m3.eq(cfg.bin_len - 3)]
 
         # Surface messages: take the current frame's, drop older ones, hold newer ones.
         diff = Signal(TAG_WIDTH)
@@ -484,40 +565,46 @@ class MatchedFilter(wiring.Component):
             with m.Elif(active):
                 m.d.comb += [cnt_nx_is1.eq(bin_end), cnt_nx_inc.eq(~bin_end)]
         with m.If(cnt_nx_is1):
-            m.d.sync += [cnt.eq(1), cnt1.eq(2)]
+            m.d.sync += [left.eq(len_m2), left1.eq(len_m3)]
         with m.Elif(cnt_nx_inc):
-            m.d.sync += [cnt.eq(cnt1), cnt1.eq(cnt1 + 1)]
+            m.d.sync += [left.eq(left1), left1.eq(left1 - 1)]
         n_eq = Mux(accept, Mux(d.first, start == 1, n1 == start), n == start)
         m.d.sync += [
             active.eq(active_nx),
             match.eq(s_known_nx & ~active_nx & n_eq),
-            bin_end.eq(Mux(cnt_nx_is1, cfg.bin_len == 1,
-                           Mux(cnt_nx_inc, cnt1 == cfg.bin_len, cnt == cfg.bin_len))),
         ]
 
-        # ---- stage 1: delay line and template (registered: the template decision is the
-        # longest path before the memories, and k fans out to all L_MAX of them) ----
+        # ---- stages 1, 2: the sample (twice) and the template `k` (registered: the template
+        # decision is the longest path before the memories); stage 3: the delay line, beside
+        # the coefficients read with the stage-2 template copies ----
         L = self.taps
+        shift1, x1, first1 = Signal(), Signal(STITCHED), Signal()
+        shift, x2, first2 = Signal(), Signal(STITCHED), Signal()
+        m.d.sync += [shift1.eq(accept_dl), x1.eq(d.x), first1.eq(d.first),
+                     shift.eq(shift1), x2.eq(x1), first2.eq(first1)]
         r = [Signal(STITCHED, name=f"r{j}") for j in range(L_MAX)]
-        with m.If(accept_dl):
+        with m.If(shift):
             for j in range(L_MAX):
                 older = r[j + 1] if j + 1 < L_MAX else 0
-                moved = Mux(d.first, 0, Mux(j < L - 1, older, 0))
-                m.d.sync += r[j].eq(Mux(L - 1 == j, d.x, moved))
+                moved = Mux(first2, 0, Mux(j < L - 1, older, 0))
+                m.d.sync += r[j].eq(Mux(L - 1 == j, x2, moved))
         # side band of each stage: valid, k, first, last
         side = data.StructLayout({"valid": 1, "k": _K_SHAPE, "first": 1, "last": 1})
         sb = [Signal(side, name=f"sb{i}") for i in range(1, LATENCY + 1)]
 
-        # ---- stages 2, 3: the multipliers' input and output registers. Tap j's coefficient
-        # memory (K_MAX words, small enough for LUT RAM) is read asynchronously with the
-        # stage-1 template straight into the multiplier's input register. The template
-        # register is replicated, one copy per group of taps, so that each memory can sit by its
-        # DSP block rather than by one register driving all 64 (a 5 ns route otherwise). Copy g
-        # holds k ^ g and group g's memory stores h[k][j] at address k ^ g: the copies differ,
-        # so synthesis cannot merge them back into one ----
-        groups = min(K_MAX, L_MAX)
+        # ---- stage 2: the template copies; stage 3: the coefficients; stages 4, 5: the
+        # multipliers' input and output registers; stage 6: the products in logic registers, so that
+        # the route out of the DSP rows (4 ns) is not in series with the first add. Tap j's
+        # coefficient memory (K_MAX words, small enough for LUT RAM) is read asynchronously with its
+        # group's template copy into a register of its own, so that the route to the DSP block
+        # starts from a register, not after the memory. The template is copied, one copy per group
+        # of taps, so that each memory can sit by its DSP block rather than by one register driving
+        # all 64 (a 5 ns route otherwise); the copies are taken from the register `k`, not from the
+        # template decision, whose logic would otherwise end in a route to all 16 (2.7 ns). Copy g
+        # holds k ^ g and group g's memory stores h[k][j] at address k ^ g: the copies differ, so
+        # synthesis cannot merge them back into one ----
         k_copy = [Signal(_K_SHAPE, name=f"k_copy{g}") for g in range(groups)]
-        m.d.sync += [k_copy[g].eq(k_sel ^ g) for g in range(groups)]
+        m.d.sync += [k_copy[g].eq(k ^ g) for g in range(groups)]
         prods = []
         for j in range(L_MAX):
             g = j * groups // L_MAX
@@ -526,16 +613,21 @@ class MatchedFilter(wiring.Component):
             wp = mem.write_port()
             rp = mem.read_port(domain="comb")
             mul = m.submodules[f"mul{j}"] = RegisteredMultiplier(STITCHED, signed(COEF_WIDTH))
+            c_reg = Signal(signed(COEF_WIDTH), name=f"c{j}")
+            m.d.sync += c_reg.eq(rp.data)
+            w = wlink[g]
             m.d.comb += [
-                wp.addr.eq(self.coef.payload.addr[_J_BITS:] ^ g),
-                wp.data.eq(self.coef.payload.data),
-                wp.en.eq(self.coef.valid & (self.coef.payload.addr[:_J_BITS] == j)),
+                wp.addr.eq(w.addr[_J_BITS:] ^ g),
+                wp.data.eq(w.data),
+                wp.en.eq(w.valid & (w.addr[:_J_BITS] == j)),
                 rp.addr.eq(k_copy[g]),
-                mul.a.eq(r[j]), mul.b.eq(rp.data), mul.ce.eq(1),
+                mul.a.eq(r[j]), mul.b.eq(c_reg), mul.ce.eq(1),
             ]
-            prods.append(mul.p)
+            p_reg = Signal.like(mul.p, name=f"p{j}")
+            m.d.sync += p_reg.eq(mul.p)
+            prods.append(p_reg)
 
-        # ---- stages 4..9: the adder tree, one level of two-input adds per stage (a 38-bit
+        # ---- stages 7..12: the adder tree, one level of two-input adds per stage (a 38-bit
         # carry chain is most of a 5 ns clock) ----
         level = prods
         tree_stages = []
@@ -544,10 +636,10 @@ class MatchedFilter(wiring.Component):
                     level[i] + level[i + 1]) for i in range(0, len(level), 2)]
             tree_stages.append(nxt)
             level = [a for a, _ in nxt]
-        assert len(tree_stages) == LATENCY - 5, "the latency assumes L_MAX = 64"
+        assert len(tree_stages) == LATENCY - 9, "the latency assumes L_MAX = 64"
         acc = level[0]
-        # ---- stage 10: shift and saturation compares, stage 11: round half up and saturate
-        # (see _round_saturate) ----
+        # ---- stages 13, 14: the shift (in two parts) and the saturation compares, stage 15:
+        # round half up and saturate (see _round_saturate) ----
         sh = cfg.out_shift
         over_at, under_at = _saturation_bounds(m, sh, len(acc))
 
@@ -560,7 +652,7 @@ class MatchedFilter(wiring.Component):
             m.d.sync += [a.eq(v) for a, v in stage]
         pipe = Signal(FILTER_OUT)  # the pipeline's last stage
         last_sb = sb[LATENCY - 1]
-        _round_saturate(m, acc, sh, over_at, under_at, pipe.y)
+        _round_saturate(m, acc, sh, over_at, under_at, pipe.y, split=True)
         m.d.comb += [pipe.k.eq(last_sb.k), pipe.first.eq(last_sb.first),
                      pipe.last.eq(last_sb.last)]
 

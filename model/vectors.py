@@ -130,7 +130,7 @@ def _filter_cases(rng):
     N = 300
     for K, L, shift in ((1, 1, 0), (8, 32, 15), (16, 64, 20)):
         bank = _bank(rng, K, L)
-        cfg = Config(out_shift=shift, bin_offset=16, bin_len=7)
+        cfg = Config(out_shift=shift, bin_offset=24, bin_len=7)
         x = rng.integers(-32768, 32768, (6, N)).astype(np.int16)
         x[0] = 32767
         x[1] = -32768

@@ -78,7 +78,7 @@ def traffic(case: Case, source=PLAIN, sink=PLAIN):
     }
 
 
-def random_case(K, L, seed, out_shift=22, bin_offset=16, bin_len=3):
+def random_case(K, L, seed, out_shift=22, bin_offset=24, bin_len=3):
     rng = np.random.default_rng(seed)
     coefs = rng.integers(S16_LO, S16_HI + 1, (K, L)).astype(np.int16)
     coefs[:, 0] = S16_LO  # the rails, at both ends of each template
@@ -103,7 +103,7 @@ def rails_case():
     bank = Bank(np.full((1, L), S16_LO, np.int16))
     frames = [np.full(200, S16_LO, np.int16), np.full(100, S16_HI, np.int16),
               np.tile(np.array([S16_LO, S16_HI], np.int16), 80), np.zeros(5, np.int16)]
-    cfg = Config(out_shift=0, bin_offset=16, bin_len=1)
+    cfg = Config(out_shift=0, bin_offset=24, bin_len=1)
     return Case(bank, cfg, frames, [10, -1, 0, 1])
 
 
@@ -114,14 +114,14 @@ def shift31_case():
     bank = Bank(np.concatenate([np.full((1, 1), S16_LO), rng.integers(S16_LO, S16_HI + 1,
                                                                         (15, 1))]
                                ).astype(np.int16))
-    frames = [rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16) for n in (1, 17, 18, 60)]
-    return Case(bank, Config(out_shift=31, bin_offset=16, bin_len=1), frames, [0, 0, 1, 5])
+    frames = [rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16) for n in (1, 25, 26, 60)]
+    return Case(bank, Config(out_shift=31, bin_offset=24, bin_len=1), frames, [0, 0, 1, 5])
 
 
 def lidar_case():
     """Echo-like frames through the stitch, the workload bank, surfaces from the model."""
     adc = synthetic_codes(6, 700, seed=11)
-    cfg = Config(bin_offset=20, bin_len=7)
+    cfg = Config(bin_offset=24, bin_len=7)
     bank = workload_bank(8, 32)
     x = np.stack([stitch_config(a, cfg) for a in adc])
     _, res = filter_and_detect(x, bank, cfg)
@@ -133,8 +133,8 @@ CASES = {
     "random_K16_L64": lambda: random_case(16, L_MAX, seed=1),
     "random_K3_L7": lambda: random_case(3, 7, seed=2, out_shift=17, bin_offset=65535 - 0,
                                         bin_len=65535),
-    "random_K5_L2_binoffset17": lambda: random_case(5, 2, seed=3, out_shift=12,
-                                                    bin_offset=17, bin_len=2),
+    "random_K5_L2_binoffset25": lambda: random_case(5, 2, seed=3, out_shift=12,
+                                                    bin_offset=25, bin_len=2),
     "rails_K1_L64_shift0": rails_case,
     "K16_L1_shift31": shift31_case,
     "lidar_K8_L32": lidar_case,
@@ -186,9 +186,9 @@ class TestAmaranthSim:
 
     def test_surface_tags_newer_wait_older_drop(self):
         bank = Bank(np.array([[3], [-5]], np.int16))
-        cfg = Config(out_shift=0, bin_offset=16, bin_len=1)
+        cfg = Config(out_shift=0, bin_offset=24, bin_len=1)
         rng = np.random.default_rng(5)
-        frames = [rng.integers(-100, 100, 24).astype(np.int16) for _ in range(3)]
+        frames = [rng.integers(-100, 100, 32).astype(np.int16) for _ in range(3)]
         # frame 1's message waits for frame 1; then frame 0's, now older, is dropped (frame 0
         # had no surface, and frame 1 must keep its own); then frame 2's
         surface = Source(SURFACE, {"n": [2, 0, 1], "tag": [1, 0, 2]}, PLAIN)

@@ -18,13 +18,16 @@ import numpy as np
 import pytest
 from test_hdl_matched_filter import S16_HI, S16_LO, Case, check, coef_source
 
+from hdl.detect import MIN_BIN_OFFSET
 from hdl.matched_filter import (
+    LATENCY,
     SURFACE,
     MatchedFilter,
     filter_in_layout,
     filter_out_layout,
     frame_tags,
 )
+from hdl.peak_detect import SURFACE_LATENCY
 from hdl.tb.amsim import simulate
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.tb.streams import PLAIN, TRAFFIC
@@ -145,7 +148,7 @@ def mixed_case(lanes: int, taps_max: int, seed: int) -> LaneCase:
     frames += random_frames(rng, [30, 2])
     surfaces += [4, 0]
     banks += [Bank(coefs[:1, :1])] * 2
-    cfg = Config(out_shift=9, bin_offset=16, bin_len=P + 1)
+    cfg = Config(out_shift=9, bin_offset=24, bin_len=P + 1)
     return LaneCase(big, cfg, frames, surfaces, banks=banks, junk=seed)
 
 
@@ -155,7 +158,7 @@ def rails_case(lanes: int, taps_max: int) -> LaneCase:
     bank = Bank(np.full((16, taps_max), S16_LO, np.int16))
     frames = [np.full(200, S16_LO, np.int16), np.full(100, S16_HI, np.int16),
               np.tile(np.array([S16_LO, S16_HI], np.int16), 80), np.zeros(5, np.int16)]
-    cfg = Config(out_shift=0, bin_offset=16, bin_len=lanes)
+    cfg = Config(out_shift=0, bin_offset=24, bin_len=lanes)
     return LaneCase(bank, cfg, frames, [10, -1, 1, 1], banks=[bank] * 4)
 
 
@@ -195,19 +198,19 @@ class TestAmaranthSim:
         res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max), **tr)
         check(per_sample(res, lanes), case)
 
-    @pytest.mark.parametrize("s, used", [(8, True), (7, False)])
+    @pytest.mark.parametrize("s, used", [(24, True), (23, False)])
     def test_surface_apply(self, s, used):
         """A surface given ahead is taken the clock after the frame's first beat and acts from
-        its fourth beat (SURFACE_APPLY = 2 edges): with 8 lanes and bin_offset 16, a switch at
-        sample 24 (beat 3, lane 0) is made, one at sample 23 (beat 2, lane 7) is missed and the
+        its fourth beat (SURFACE_APPLY = 2 edges): with 16 lanes and bin_offset 24, a switch at
+        sample 48 (beat 3, lane 0) is made, one at sample 47 (beat 2, lane 15) is missed and the
         frame keeps template 0, as a late surface does."""
         rng = np.random.default_rng(3)
         bank = Bank(np.array([[3], [-5]], np.int16))
-        frames = [rng.integers(-100, 100, 64).astype(np.int16)]
-        cfg = Config(out_shift=0, bin_offset=16, bin_len=8)
+        frames = [rng.integers(-100, 100, 96).astype(np.int16)]
+        cfg = Config(out_shift=0, bin_offset=24, bin_len=16)
         case = LaneCase(bank, cfg, frames, [s], banks=[bank])
-        res = simulate(unused(8, 1), **lane_traffic(case, 8, 1))
-        check(per_sample(res, 8), case if used else
+        res = simulate(unused(16, 1), **lane_traffic(case, 16, 1))
+        check(per_sample(res, 16), case if used else
               LaneCase(bank, cfg, frames, [-1], banks=[bank]))
 
 
@@ -229,7 +232,7 @@ class TestParameters:
         mf = unused(8, 16)
         assert (mf.lanes, mf.taps_max, mf.latency) == (8, 16, 10)
         assert unused(2, 17).latency == 11
-        assert unused().latency == 11
-        # the one-lane join bound of hdl.detect: bin_offset >= 16
-        assert unused().max_unsurfaced(2) + 1 == 16
+        assert unused().latency == LATENCY  # one lane: its own design
+        # the one-lane join bound of hdl.detect
+        assert unused().max_unsurfaced(SURFACE_LATENCY) + 1 == MIN_BIN_OFFSET
         assert mf.max_unsurfaced(2) == 8 * (10 + 2 + 2)

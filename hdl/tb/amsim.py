@@ -29,7 +29,7 @@ def port(component, name: str):
 
 
 def simulate(component, *, sources: dict, sinks: dict, static: dict | None = None, watch=(),
-             max_clocks: int = 100_000, quiet_clocks: int = 32, vcd: str | None = None
+             max_clocks: int = 100_000, quiet_clocks: int = 128, vcd: str | None = None
              ) -> BenchResult:
     """Run ``component`` in the Amaranth simulator with stream traffic (see ``hdl.tb.cosim.run``).
 

@@ -263,7 +263,7 @@ def cfg_ports(config, group: str, prefix: str = "cfg") -> dict[str, int]:
 
 
 def run(design: Design, run_dir, *, sources: dict, sinks: dict, static: dict | None = None,
-        watch=(), max_clocks: int = 1_000_000, quiet_clocks: int = 32,
+        watch=(), max_clocks: int = 1_000_000, quiet_clocks: int = 128,
         label: str | None = None) -> BenchResult:
     """Simulate ``design`` with the given traffic and return what its sinks saw.
 
