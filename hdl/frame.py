@@ -10,9 +10,10 @@ byte FIFO that takes a packet whole or drops it whole (``docs/spec.md`` sections
 
 Why a buffer: the header's ``flags`` (``SURFACE``/``BOTTOM``) and, for peak frames, ``length``
 are known only at the frame's end, and they precede the payload (and sit inside the CRC-32), so
-the payload is kept until the detector's result arrives. Each sample is stored as one 32-bit word
-holding its payload item (raw codes, ``x`` or ``y``), whatever the frame type: the largest item
-(a filtered s32) fits, and the emitter reads one word per item.
+the payload is kept until the detector's result arrives. Each sample is stored as one 24-bit word
+holding its payload value (raw codes, ``x`` or ``y``), whatever the frame type: the largest value
+(codes, or a filtered y) fits, the emitter reads one word per item, and a filtered item's fourth
+byte (the sign of y, an s32 item) is made as it is sent.
 
 Why the admission at the start of a packet: the packet's size is known before its first byte is
 written, and only this block writes to the FIFO, so the free space can only grow while the
@@ -23,7 +24,6 @@ from __future__ import annotations
 
 from amaranth.hdl import Cat, Const, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import data, memory, stream, wiring
-from amaranth.lib.fifo import SyncFIFOBuffered
 from amaranth.lib.wiring import In, Out
 
 from model.layouts import FRAME_HEADER, PEAK_RECORD, FrameFlag, FrameType, item_bytes
@@ -39,6 +39,7 @@ from model.link import (
 from model.matched_filter import OUT_WIDTH
 from model.registers import by_name
 
+from .gate import _le, _step, _Store
 from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
 from .peak_detect import PEAK_RESULT
 
@@ -61,6 +62,10 @@ PACK_IN = data.StructLayout({
 COUNT_BITS = 32
 
 _WORD = 8 * max(item_bytes(t) for t in FrameType if t != FrameType.PEAKS)
+# What the buffer keeps of an item: the largest payload value (codes, or a filtered y); the
+# s32 item's top byte is the sign of y, rebuilt as it is sent.
+_KEPT = max(CODES.size, STITCHED.width, OUT_WIDTH)
+assert _KEPT == _WORD - 8 == OUT_WIDTH, "only a filtered item is longer than what is kept"
 _REC = PEAK_RECORD.size
 _REC_SLOTS = 2  # surface and bottom
 _LEN = FRAME_HEADER["length"].bits
@@ -95,8 +100,8 @@ class FramePacketizer(wiring.Component):
         FIFO capacity in bytes (``FIFO_BYTES`` = 32768 in the reference device). A packet is
         admitted only if ``fifo_level + packet bytes <= capacity``.
     max_samples : int
-        Payload buffer, in samples (32-bit words): 4096 (``GATE_LEN_MAX``) holds the longest
-        frame of every type, 16 KiB. A frame with more samples is dropped (counted).
+        Payload buffer, in samples (24-bit words): 4096 (``GATE_LEN_MAX``) holds the longest
+        frame of every type, 12 KiB. A frame with more samples is dropped (counted).
 
     Attributes
     ----------
@@ -121,9 +126,10 @@ class FramePacketizer(wiring.Component):
 
     Notes
     -----
-    Latency: the packet's first byte is written to the FIFO on the fourth clock edge after the
-    one that takes the result (size, room compare, admission, first byte) and appears on ``o``
-    2 clocks later (the FIFO's read register); then one byte per clock while ``o`` is ready.
+    Latency: the packet's first byte is written to the FIFO on the fifth clock edge after the
+    one that takes the result (size, room compare, admission, byte choice, write) and appears
+    on ``o`` 2 clocks later (the FIFO's read register); then one byte per clock while ``o`` is
+    ready. ``header.ready``, ``i.ready`` and ``result.ready`` are registers.
     While a packet is written (one byte per clock, never stalled), the next frame's samples
     wait:
     :func:`packet_cycles` gives the clocks a frame occupies the block.
@@ -150,10 +156,10 @@ class FramePacketizer(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        # One entry more than the capacity, so that the inner memory alone holds `capacity`
-        # bytes and an admitted packet finds w_rdy on every byte (as hdl/gate.py does).
-        fifo = m.submodules.fifo = SyncFIFOBuffered(width=BYTE.size, depth=self.capacity + 1)
-        buf = m.submodules.buf = memory.Memory(shape=_WORD, depth=self.max_samples, init=[])
+        # The writer below admits a packet only if all of it fits, so the FIFO needs no
+        # `w_rdy`, and its "not empty" is a register: the gate's store, which has both.
+        fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity)
+        buf = m.submodules.buf = memory.Memory(shape=_KEPT, depth=self.max_samples, init=[])
         wr = buf.write_port()
         rd = buf.read_port(domain="sync")
         hcrc = m.submodules.hcrc = HEADER_CRC(data_width=8).create()
@@ -166,17 +172,33 @@ class FramePacketizer(wiring.Component):
         ftype = hdr.frame_type
         is_peaks = ftype == FrameType.PEAKS
 
+        # The three input readies are registers, each high exactly in its state (HEADER,
+        # COLLECT, RESULT): decoded from the state, they reached into the neighbours'
+        # handshakes (the filter's output buffer through the sample slice, 10.9 ns in the
+        # pipeline).
+        hdr_rdy = Signal(init=1)
+        col_rdy = Signal()
+        res_rdy = Signal()
+        m.d.comb += [self.header.ready.eq(hdr_rdy), self.i.ready.eq(col_rdy),
+                     self.result.ready.eq(res_rdy)]
+        # Taking a sample writes it when the frame keeps samples and the buffer has room:
+        # both flags are registers, so the write enable is one LUT from the slice's `r_rdy`.
+        peaks_q = Signal()
+        full = Signal()  # n == max_samples
+
         # ---- collect: header first, then the samples into the buffer ----
         beat = self.i.payload
-        item = Signal(_WORD)
+        item = Signal(_KEPT)
         with m.Switch(ftype):
             with m.Case(FrameType.RAW):
                 m.d.comb += item.eq(Cat(beat.codes.l, beat.codes.m, beat.codes.h))
             with m.Case(FrameType.STITCHED):
                 m.d.comb += item.eq(beat.x.as_unsigned())
             with m.Case(FrameType.FILTERED):
-                m.d.comb += item.eq(beat.y)  # sign-extended to the word (an s32 item)
-        m.d.comb += [wr.addr.eq(n), wr.data.eq(item)]
+                m.d.comb += item.eq(beat.y)  # its sign byte is rebuilt when sent
+        take = Signal()
+        m.d.comb += [take.eq(self.i.valid & col_rdy),
+                     wr.addr.eq(n), wr.data.eq(item), wr.en.eq(take & ~peaks_q & ~full)]
 
         # ---- the finished frame: flags, length, sizes ----
         found_s = res.surface.kind != 0
@@ -214,8 +236,6 @@ class FramePacketizer(wiring.Component):
         assert _REC == 16, "a peak record is 16 bytes (count << 4)"
         body = Signal(_PKT_LEN)  # frame bytes: header + payload (registered for the compare)
         m.d.sync += body.eq(Mux(is_peaks, body_peaks, body_samples))
-        size = Signal(range(1 << (_PKT_LEN + 1)))
-        m.d.comb += size.eq(body + PACKET_HEADER.size + CRC_BYTES)
         fin = Signal(FRAME_HEADER_LAYOUT)  # the header as sent
         m.d.comb += [
             fin.eq(hdr),
@@ -224,13 +244,32 @@ class FramePacketizer(wiring.Component):
             fin.length.eq(length),
         ]
 
-        # ---- emit: packet header, frame header (+ records), samples, CRC ----
-        seq = Signal(8)
+        # ---- the FIFO's room, counted here ----
+        # `room` is the capacity less the bytes held less a packet's overhead (link header and
+        # CRC), so a packet fits when its frame bytes are at most `room`: one carry chain from
+        # two registers. Both counts step by a choice among register values (`_step`).
+        overhead = PACKET_HEADER.size + CRC_BYTES
+        room = Signal(signed(self.capacity.bit_length() + 2), init=self.capacity - overhead)
+        level = Signal(range(self.capacity + 1))
+        put = Signal()  # a byte written into the FIFO at this clock
+        got = self.o.valid & self.o.ready
+        m.d.sync += [room.eq(_step(room, got, put)), level.eq(_step(level, put, got))]
         fits = Signal()
-        m.d.sync += fits.eq(self.fifo_level + size <= self.capacity)
-        pkt = Signal(8 * PACKET_HEADER.size)  # sync, type, seq, length; hcrc mux'd in at 6, 7
+        m.d.sync += fits.eq(_le(body, room))
+
+        # ---- emit: packet header, frame header (+ records), samples, CRC ----
+        # The state machine chooses each byte and what the CRCs do with it, all into registers
+        # (`q_*`); the CRCs and the FIFO take them at the next clock. A CRC's own bytes are
+        # picked there, when the CRC has taken every byte before them: the byte choice and the
+        # CRC-32 update were one path before.
+        seq = Signal(8)
+        pkt = Signal(8 * PACKET_HEADER.size)  # sync, type, seq, length (the CRC bytes unused)
         sh = Signal(8 * (_HDR + _REC_SLOTS * _REC))  # frame header then the two records
-        word = Signal(_WORD)
+        # The item being sent, as read: loaded only (its byte chosen by `j`), so that the
+        # block RAM's output goes straight into a register. Its clock-to-output is 5.8 ns of a
+        # 5 ns clock already; a shift mux behind it made 9.3 ns (107 MHz), and a 32-bit word
+        # whose top byte only repeated bit 23 had Yosys rebuild it with a LUT there (8.0 ns).
+        word = Signal(_KEPT)
         pos = Signal(range(PACKET_HEADER.size + 1))
         left = Signal(_PKT_LEN + 1)  # bytes left in the current section
         j = Signal(range(_REC + 1))  # byte within the current sample item
@@ -239,47 +278,62 @@ class FramePacketizer(wiring.Component):
         byte = Signal(8)
         w_en = Signal()
         w_last = Signal()
+        hv, hs, bv, bs = Signal(), Signal(), Signal(), Signal()
+        src = Signal(2)  # 0: `byte`, 1: header CRC low byte, 2: its high byte, 3: a CRC-32 byte
+        q_byte, q_last, q_hv, q_hs, q_bv, q_bs = (Signal(8), Signal(), Signal(), Signal(),
+                                                  Signal(), Signal())
+        q_src = Signal(2)
+        q_crc_i = Signal.like(crc_i)
+        m.d.sync += [put.eq(w_en), q_byte.eq(byte), q_last.eq(w_last), q_hv.eq(hv),
+                     q_hs.eq(hs), q_bv.eq(bv), q_bs.eq(bs), q_src.eq(src), q_crc_i.eq(crc_i)]
+        out = Signal(8)
+        with m.Switch(q_src):
+            with m.Case(0):
+                m.d.comb += out.eq(q_byte)
+            with m.Case(1):
+                m.d.comb += out.eq(hcrc.crc[:8])
+            with m.Case(2):
+                m.d.comb += out.eq(hcrc.crc[8:])
+            with m.Case(3):
+                m.d.comb += out.eq(bcrc.crc.word_select(q_crc_i, 8))
         m.d.comb += [
-            fifo.w_data.eq(Cat(byte, w_last)),
-            fifo.w_en.eq(w_en),
-            bcrc.data.eq(byte),
-            hcrc.data.eq(byte),
+            fifo.w_data.eq(Cat(out, q_last)),
+            fifo.w_en.eq(put),
+            fifo.w_keep.eq(put),
+            hcrc.data.eq(q_byte), hcrc.valid.eq(q_hv), hcrc.start.eq(q_hs),
+            bcrc.data.eq(q_byte), bcrc.valid.eq(q_bv), bcrc.start.eq(q_bs),
         ]
 
         with m.FSM():
             with m.State("HEADER"):
-                m.d.comb += self.header.ready.eq(1)
                 with m.If(self.header.valid):
-                    m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0)]
+                    m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0), full.eq(0),
+                                 peaks_q.eq(self.header.payload.frame_type == FrameType.PEAKS),
+                                 hdr_rdy.eq(0), col_rdy.eq(1)]
                     m.next = "COLLECT"
             with m.State("COLLECT"):
-                m.d.comb += [self.busy.eq(1), self.i.ready.eq(1)]
-                with m.If(self.i.valid):
+                with m.If(take):
                     # peak frames need no samples; an overlong frame is dropped at its end
-                    m.d.comb += wr.en.eq(~is_peaks & (n < self.max_samples))
-                    with m.If(n < self.max_samples):
-                        m.d.sync += n.eq(n + 1)
+                    with m.If(~full):
+                        m.d.sync += [n.eq(n + 1), full.eq(n == self.max_samples - 1)]
                     with m.Else():
                         m.d.sync += over.eq(1)
                     with m.If(beat.last):
+                        m.d.sync += [col_rdy.eq(0), res_rdy.eq(1)]
                         m.next = "RESULT"
             with m.State("RESULT"):
-                m.d.comb += [self.busy.eq(1), self.result.ready.eq(1)]
                 with m.If(self.result.valid):
-                    m.d.sync += res.eq(self.result.payload)
+                    m.d.sync += [res.eq(self.result.payload), res_rdy.eq(0)]
                     m.next = "SIZE"
             with m.State("SIZE"):
                 # the size is known from the stored result: `body` registers it at this edge,
                 # `fits` compares it with the FIFO's room at the next (two short paths rather
                 # than one long one). The room only grows meanwhile (nothing else writes), so a
                 # decision made a clock early never admits a packet that does not fit.
-                m.d.comb += self.busy.eq(1)
                 m.next = "ROOM"
             with m.State("ROOM"):
-                m.d.comb += self.busy.eq(1)
                 m.next = "DECIDE"
             with m.State("DECIDE"):
-                m.d.comb += self.busy.eq(1)
                 with m.If(fits & ~over):
                     m.d.sync += [
                         pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
@@ -292,13 +346,13 @@ class FramePacketizer(wiring.Component):
                     ]
                     m.next = "LINK_HEADER"
                 with m.Else():
-                    m.d.sync += self.frames_dropped.eq(self.frames_dropped + 1)
+                    m.d.sync += [self.frames_dropped.eq(self.frames_dropped + 1),
+                                 hdr_rdy.eq(1)]
                     m.next = "HEADER"
             with m.State("LINK_HEADER"):
-                m.d.comb += [self.busy.eq(1), w_en.eq(1)]
-                m.d.comb += byte.eq(Mux(pos == 6, hcrc.crc[:8],
-                                        Mux(pos == 7, hcrc.crc[8:], pkt[:8])))
-                m.d.comb += [hcrc.valid.eq((pos >= 2) & (pos < 6)), hcrc.start.eq(pos == 2)]
+                m.d.comb += [w_en.eq(1), byte.eq(pkt[:8]),
+                             src.eq(Mux(pos == 6, 1, Mux(pos == 7, 2, 0))),
+                             hv.eq((pos >= 2) & (pos < 6)), hs.eq(pos == 2)]
                 m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos + 1)]
                 with m.If(pos == PACKET_HEADER.size - 1):
                     # frame header, plus the records of a peaks frame
@@ -306,8 +360,8 @@ class FramePacketizer(wiring.Component):
                                  body_start.eq(1)]
                     m.next = "FRAME_HEADER"
             with m.State("FRAME_HEADER"):
-                m.d.comb += [self.busy.eq(1), w_en.eq(1), byte.eq(sh[:8]),
-                             bcrc.valid.eq(1), bcrc.start.eq(body_start)]
+                m.d.comb += [w_en.eq(1), byte.eq(sh[:8]),
+                             bv.eq(1), bs.eq(body_start)]
                 m.d.sync += [sh.eq(sh >> 8), left.eq(left - 1), body_start.eq(0)]
                 with m.If(left == 1):
                     # the buffer's word 0 has been on the read port since DECIDE
@@ -320,25 +374,27 @@ class FramePacketizer(wiring.Component):
             with m.State("SAMPLES"):
                 # `left` counts items; the next word is read while this one is sent (each item
                 # has at least two bytes, so the read port has settled by the time it is used)
-                m.d.comb += [self.busy.eq(1), w_en.eq(1), byte.eq(word[:8]), bcrc.valid.eq(1)]
-                m.d.sync += [word.eq(word >> 8), j.eq(j + 1)]
+                item_out = Cat(word, word[-1].replicate(8))  # a filtered item's sign byte
+                m.d.comb += [w_en.eq(1), byte.eq(item_out.word_select(j[:2], 8)), bv.eq(1)]
+                m.d.sync += j.eq(j + 1)
                 with m.If(j == ibytes - 1):
                     m.d.sync += [word.eq(rd.data), rd.addr.eq(rd.addr + 1), j.eq(0),
                                  left.eq(left - 1)]
                     with m.If(left == 1):
                         m.next = "CRC"
             with m.State("CRC"):
-                m.d.comb += [self.busy.eq(1), w_en.eq(1),
-                             byte.eq(bcrc.crc.word_select(crc_i, 8)),
+                m.d.comb += [w_en.eq(1), src.eq(3),
                              w_last.eq(crc_i == CRC_BYTES - 1)]
                 m.d.sync += crc_i.eq(crc_i + 1)
                 with m.If(crc_i == CRC_BYTES - 1):
+                    m.d.sync += hdr_rdy.eq(1)
                     m.next = "HEADER"
 
         m.d.comb += [
-            self.o.payload.eq(fifo.r_data),
-            self.o.valid.eq(fifo.r_rdy),
-            fifo.r_en.eq(self.o.ready),
-            self.fifo_level.eq(fifo.level),
+            self.o.payload.eq(fifo.r.payload),
+            self.o.valid.eq(fifo.r.valid),
+            fifo.r.ready.eq(self.o.ready),
+            self.fifo_level.eq(level),
+            self.busy.eq(~hdr_rdy | put),  # `put`: the packet's last byte is still to go in
         ]
         return m

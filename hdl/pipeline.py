@@ -23,7 +23,7 @@ inside, and ``bank_id`` is written into it then.
 
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Module, Signal
+from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.fifo import SyncFIFO, SyncFIFOBuffered
 from amaranth.lib.wiring import In, Out
@@ -35,7 +35,7 @@ from model.matched_filter import K_MAX, L_MAX
 from . import matched_filter, stitch
 from .detect import FilterDetect
 from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, PACK_IN, FramePacketizer
-from .gate import Gate
+from .gate import Gate, _step
 from .layouts import CODES, GATE_OUT, STITCHED, config_signature
 from .matched_filter import COEF_WRITE
 
@@ -107,6 +107,7 @@ class Pipeline(wiring.Component):
         Packets admitted to the FIFO; frames dropped whole (FIFO full, or the gate's FIFO full);
         bytes waiting in the FIFO; frames made (frames the gate completed and handed on, plus
         those it dropped: ``frames_sent + frames_dropped`` once the pipeline is idle).
+        ``frames_dropped`` and ``shots`` are registered sums, a clock behind their counts.
 
     Notes
     -----
@@ -238,32 +239,43 @@ class Pipeline(wiring.Component):
         done = pk.result.valid & pk.result.ready
 
         # ---- headers: handed over once their frame is inside, stamped with bank_id ----
+        # The counts step by a choice among register values (`_step`), and "a header may go"
+        # is a register beside its count (`ready_h`), not a compare: it gates the gate's
+        # header read, and the handshakes reach it.
         inside = Signal(_INSIDE_BITS)  # frames entered, results not yet taken
         waiting = Signal(_INSIDE_BITS)  # frames entered, headers not yet taken
-        m.d.sync += [inside.eq(inside + enters - done)]
+        ready_h = Signal()  # waiting != 0
         h_take = pk.header.valid & pk.header.ready
-        m.d.sync += waiting.eq(waiting + enters - h_take)
+        m.d.sync += [inside.eq(_step(inside, enters, done)),
+                     waiting.eq(_step(waiting, enters, h_take)),
+                     ready_h.eq(enters | Mux(h_take, waiting != 1, ready_h))]
         m.d.comb += [
             pk.header.payload.eq(gate.header.payload),
             pk.header.payload.bank_id.eq(self.bank_id),
-            pk.header.valid.eq(gate.header.valid & (waiting != 0)),
-            gate.header.ready.eq(pk.header.ready & (waiting != 0)),
+            pk.header.valid.eq(gate.header.valid & ready_h),
+            gate.header.ready.eq(pk.header.ready & ready_h),
             self.frame_idle.eq(inside == 0),
         ]
 
         # ---- counters ----
         gate_drops = Signal(COUNT_BITS)
-        prev = Signal.like(gate.dropped)
-        m.d.sync += prev.eq(gate.dropped)
-        with m.If(gate.dropped != prev):  # it moves by one at most per clock, then saturates
+        # `dropped` moves by one at most per clock, then saturates: a step is a toggle of its
+        # low bit (a compare of the whole count was a LUT tree in front of a 32-bit enable)
+        prev = Signal()
+        m.d.sync += prev.eq(gate.dropped[0])
+        with m.If(gate.dropped[0] != prev):
             m.d.sync += gate_drops.eq(gate_drops + 1)
         made = Signal(COUNT_BITS)  # frames the gate has completed
         with m.If(gate.header.valid & gate.header.ready):
             m.d.sync += made.eq(made + 1)
         m.d.comb += [
             self.frames_sent.eq(pk.frames_sent),
-            self.frames_dropped.eq(pk.frames_dropped + gate_drops),
             self.fifo_level.eq(pk.fifo_level),
+        ]
+        # the two sums registered, so that a reader of the status gets no 32-bit add in front
+        # of its own logic (they lag by a clock, as a status may)
+        m.d.sync += [
+            self.frames_dropped.eq(pk.frames_dropped + gate_drops),
             self.shots.eq(made + gate_drops),
         ]
         return m
