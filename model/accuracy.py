@@ -43,7 +43,7 @@ from dask.callbacks import Callback
 __all__ = ["CHUNK", "DEPTHS_FULL", "DEPTHS_QUICK", "N_FULL", "N_MAX_FULL", "N_MAX_QUICK",
            "N_QUICK", "PAPERS", "MethodSpec", "Point", "Sweep", "bench_accuracy", "chunk_seed",
            "depth_stats", "load_methods", "method_specs", "run_chunk", "run_sweeps",
-           "summarize", "survey_base", "targets"]
+           "study_base", "summarize", "survey_base", "targets", "unstretched_sweep"]
 
 #: Shots per Dask task (a chunk): large enough that a task's fixed cost (the Monte Carlo
 #: kernels of the simulator, about 0.3 s) stays small, small enough to balance two workers.
@@ -675,6 +675,26 @@ def targets(methods: list, fpga: dict | None = None) -> dict:
     return {"targets": out, "all_met": bool(out) and all(t["met"] for t in out)}
 
 
+def study_base(depths):
+    """The scene of the depth sweep over ``depths`` [m]: :func:`survey_base` with a gate
+    covering 40 m or the deepest depth, whichever is larger."""
+    return dataclasses.replace(survey_base(), max_depth_m=max(40.0, max(depths)))
+
+
+def unstretched_sweep(base, depths, specs, n: int, seed: int = 0) -> Sweep:
+    """The ``unstretched`` side study: ``base`` (:func:`study_base`) with seed 000's kind of
+    bottom at ``depths`` [m], ``n`` shots per depth, for ``specs``.
+
+    Seed 000's simulator (Wa-LiD) has no pulse stretching: the cheapest fidelity level,
+    forced by a tolerance no stretching reaches, is that bottom. The methods are prepared
+    for this scene too (their banks and tables see the same unstretched bottom).
+    ``model.speed`` times the methods on the very same shots.
+    """
+    flat = dataclasses.replace(base, fidelity_tolerance_m=10.0)
+    return Sweep("unstretched", tuple(Point(flat, float(d), float(d), photon=None)
+                                      for d in depths), specs, n, seed)
+
+
 def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
                    names=None, n: int | None = None, depths=None, seed: int = 0) -> dict:
     """``albcap bench accuracy``: the depth sweep of every method and the side studies.
@@ -710,7 +730,7 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
         raise ValueError(f"depths must be in 0 < depth <= 200 m, not {depths!r}")
     known = load_methods()
     specs = method_specs(names, known, n_max=N_MAX_QUICK if quick else N_MAX_FULL)
-    base = dataclasses.replace(survey_base(), max_depth_m=max(40.0, max(depths)))
+    base = study_base(depths)
     pts = tuple(Point(base, float(d), float(d)) for d in depths)
     one = dataclasses.replace(base, gains=(100.0, 100.0, 100.0))
     side_n = n if quick else max(1, n // 4)
@@ -727,12 +747,7 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
         sweeps.append(Sweep("stitch_paper", pts, paper_specs, side_n, seed, stream="main"))
     uns_specs = tuple(s for s in specs if s.name in UNSTRETCHED_METHODS)
     if uns_specs:
-        # Seed 000's simulator (Wa-LiD) has no pulse stretching: the cheapest fidelity level,
-        # forced by a tolerance no stretching reaches, is that bottom. The methods are prepared
-        # for this scene too (their banks and tables see the same unstretched bottom).
-        flat = dataclasses.replace(base, fidelity_tolerance_m=10.0)
-        sweeps.append(Sweep("unstretched", tuple(Point(flat, p.depth_m, p.x, photon=None)
-                                                 for p in pts), uns_specs, side_n, seed))
+        sweeps.append(unstretched_sweep(base, depths, uns_specs, side_n, seed))
     t0 = time.perf_counter()
     res = run_sweeps(sweeps, scheduler=scheduler, progress=progress)
     elapsed = time.perf_counter() - t0
@@ -786,8 +801,7 @@ def score(res: dict, figures: dict | None = None) -> dict:
     figures = load_fpga_figures() if figures is None else figures
     n = res.get("samples_per_waveform_mean")
     if n is None and figures:  # a JSON from before the field: the same computation
-        n = mean_samples(dataclasses.replace(survey_base(), max_depth_m=max(
-            40.0, max(res["depths_m"]))), res["depths_m"])
+        n = mean_samples(study_base(res["depths_m"]), res["depths_m"])
     fpga = onchip_fpga_time(n, res.get("onchip_taps", 64), figures) if n else None
     out = {**res, **targets(res["methods"], fpga)}
     uns = res.get("variants", {}).get("unstretched")

@@ -1,11 +1,12 @@
-"""Command-line front end of the accuracy study: ``bench accuracy``, ``bench regimes``, ``chart``.
+"""Command-line front end of the accuracy study: ``bench accuracy|regimes|speed``, ``chart``.
 
 ``albcap bench accuracy [--quick] [--json]`` and ``albcap bench regimes [--quick] [--json]``
 write their JSON to ``docs/figures/accuracy.json`` and ``docs/figures/regimes.json`` (``--out``)
 and print a table (or, with ``--json``, the JSON). ``albcap chart`` reads them back and draws
 the charts; ``albcap chart --results docs/results.md`` also refreshes the page's generated
 tables. Sweeps run on Dask: local processes by default, ``--scheduler sync|threads|processes``
-or the address of a ``dask.distributed`` scheduler.
+or the address of a ``dask.distributed`` scheduler. ``albcap bench speed [--json]`` times
+methods serially on the sweep's ``unstretched`` batch (``model.speed``) and writes no file.
 """
 
 from __future__ import annotations
@@ -113,6 +114,45 @@ def _cmd_bench_regimes(args) -> int:
     return 1 if res["violations"] else 0
 
 
+def _count(text: str, what: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise ValueError(f"--{what} must be an integer >= 1, not {text!r}")
+    return int(text)
+
+
+def _cmd_bench_speed(args) -> int:
+    from .speed import bench_speed
+
+    res = bench_speed(_names(args.methods), repeats=_count(args.repeats, "repeats"),
+                      shots=_count(args.shots, "shots"), seed=args.seed)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    print(f"{res['n_waveforms']} waveforms ({res['shots_per_depth']} per depth, "
+          f"{len(res['depths_m'])} depths {res['depth_range_m'][0]:g}-"
+          f"{res['depth_range_m'][1]:g} m, unstretched, "
+          f"{res['samples_per_waveform_mean']:g} samples mean), {res['repeats']} repeats, "
+          f"Numba threads {res['numba_threads']}")
+    chip = res["onchip"]
+    print(f"{'method':16s} {'min us/wf':>10s} {'median':>10s} {'min/chip':>9s} {'med/chip':>9s}")
+    for m in res["methods"]:
+        print(f"{m['name']:16s} {m['us_min']:>10.2f} {m['us_median']:>10.2f} "
+              f"{_f(m['ratio_min'], 1, 1):>9s} {_f(m['ratio_median'], 1, 1):>9s}")
+    if chip:
+        print(f"on-chip (FPGA, {chip['key']}): {chip['us_per_waveform']:g} us per waveform "
+              f"({chip['clocks_per_waveform']} clocks at {chip['fmax_mhz']:g} MHz)")
+    else:
+        print("on-chip: no FPGA figure recorded (albcap hdl synth --out docs/figures/fpga.json)")
+    t = res["target"]
+    if t:
+        for k in ("min", "median"):
+            print(f"target {'met    ' if t[f'met_{k}'] else 'NOT met'} ({k:6s}): {t['text']}: "
+                  f"{t[f'ratio_{k}']:g} x")
+    print(f"load average (1, 5, 15 min) before {res['loadavg_before']}, after "
+          f"{res['loadavg_after']}, {res['cpu_count']} CPUs")
+    return 0
+
+
 def _read(path: str, what: str):
     p = Path(path)
     if not p.exists():
@@ -175,7 +215,7 @@ def register(sub) -> None:
 
 
 def register_bench(bench_sub) -> None:
-    """Add ``albcap bench accuracy`` and ``albcap bench regimes``."""
+    """Add ``albcap bench accuracy``, ``albcap bench regimes`` and ``albcap bench speed``."""
     p = bench_sub.add_parser("accuracy", help="bias, std, RMSE, detection and us/waveform of "
                                               "every method over a depth sweep (Dask)")
     _common(p, "accuracy")
@@ -186,3 +226,13 @@ def register_bench(bench_sub) -> None:
                                              "of every method where methods fail (Dask)")
     _common(p, "regimes")
     p.set_defaults(func=_cmd_bench_regimes)
+    p = bench_sub.add_parser("speed", help="us/waveform of methods on the sweep's unstretched "
+                                           "batch, serially, min and median of repeats, "
+                                           "against the FPGA's time")
+    p.add_argument("--json", action="store_true", help="print the JSON instead of a table")
+    p.add_argument("--repeats", default="7", help="passes over the batch per method (default 7)")
+    p.add_argument("--shots", default="250", help="shots per depth, 1-26 m (default 250)")
+    p.add_argument("--methods", help="comma-separated method names (default: peaks_float, "
+                                     "adaptive_mf, fixed_mf)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_bench_speed)
