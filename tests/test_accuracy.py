@@ -131,6 +131,24 @@ class TestSummaryAndTargets:
         assert not res["all_met"]
         assert {x["id"]: x["met"] for x in res["targets"]}["onchip_speed"] is False
 
+    def test_serial_offline_time_replaces_the_sweeps(self):
+        """With an FPGA time, the speed bench's serial figure of the best offline method (when it
+        has one) is the reference, not the sweep's time measured under load."""
+        good = [_row(1.0, 0.01, 0.008, 1.0), _row(26.0, -0.01, 0.008, 0.995)]
+        ms = [_method("adaptive_mf", good, 10.0, bit_exact=True),
+              _method("offline", good, 5000.0)]
+        fpga = {"us_per_waveform": 4.0, "lanes": 2, "fmax_mhz": 100.0, "key": "k"}
+        row = {x["id"]: x for x in targets(ms, fpga)["targets"]}["onchip_speed"]
+        assert row["value"] == pytest.approx(1250.0) and "sweep" in row["text"]
+        row = {x["id"]: x for x in targets(ms, fpga, {"offline": 300.0})["targets"]}[
+            "onchip_speed"]
+        assert row["value"] == pytest.approx(75.0) and row["met"] is False
+        assert row["offline_us_per_waveform_serial"] == 300.0 and "bench speed" in row["text"]
+        # a serial figure of another method changes nothing
+        row = {x["id"]: x for x in targets(ms, fpga, {"peaks_float": 1.0})["targets"]}[
+            "onchip_speed"]
+        assert row["value"] == pytest.approx(1250.0)
+
 
 class TestSeedsAndTasks:
     def test_seed_depends_on_its_key_only(self):

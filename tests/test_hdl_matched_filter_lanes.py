@@ -230,9 +230,9 @@ class TestParameters:
 
     def test_attributes(self):
         mf = unused(8, 16)
-        assert (mf.lanes, mf.taps_max, mf.latency) == (8, 16, 10)
-        assert unused(2, 17).latency == 11
+        assert (mf.lanes, mf.taps_max, mf.latency) == (8, 16, 11)
+        assert unused(2, 17).latency == 12
         assert unused().latency == LATENCY  # one lane: its own design
         # the one-lane join bound of hdl.detect
         assert unused().max_unsurfaced(SURFACE_LATENCY) + 1 == MIN_BIN_OFFSET
-        assert mf.max_unsurfaced(2) == 8 * (10 + 2 + 2)
+        assert mf.max_unsurfaced(2) == 8 * (11 + 2 + 2)
