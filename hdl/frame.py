@@ -39,7 +39,7 @@ from model.link import (
 from model.matched_filter import OUT_WIDTH
 from model.registers import by_name
 
-from .gate import _le, _step, _Store
+from ._primitives import _le, _step, _Store
 from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
 from .peak_detect import PEAK_RESULT
 

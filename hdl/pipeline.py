@@ -33,9 +33,10 @@ from model.link import FIFO_BYTES
 from model.matched_filter import K_MAX, L_MAX
 
 from . import matched_filter, stitch
+from ._primitives import _step
 from .detect import FilterDetect
 from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, PACK_IN, FramePacketizer
-from .gate import Gate, _step
+from .gate import Gate
 from .layouts import CODES, GATE_OUT, STITCHED, config_signature
 from .matched_filter import COEF_WRITE
 
