@@ -311,7 +311,7 @@ class SceneBank:
 def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
                x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
                mc_packets: int = 20000, mc_seed: int = 4242,
-               adc_noise_lsb: float | None = None) -> SceneBank:
+               adc_noise_lsb: float | None = None, min_bin_offset: int = 0) -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
@@ -339,6 +339,11 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         Noise of the stitched input that is always there, LSB rms, for ``min_thr``. Default:
         the scene's own floor in the high-gain channel, its ADC noise, its TIA noise and the
         quantization (1/12 LSB^2) added in power; about 0.56 LSB for ``seed000``.
+    min_bin_offset : int
+        Samples below the surface before which no template switch may come: a build with
+        ``lanes`` samples per clock is exact only for ``bin_offset >= min_bin_offset``
+        (``hdl.detect.FilterDetect.min_bin_offset``), so its bank starts template 1 no
+        shallower than that (``first_bin_m`` is raised to it when it is shallower).
     """
     from sim.optics import refracted_angle
 
@@ -351,6 +356,9 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     sigma = math.hypot(scene.pulse_fwhm_s / math.sqrt(8 * math.log(2)), sigma_e)
     cos_w = math.cos(refracted_angle(scene.incidence_deg, scene.n_water))
     m_per_sample = 299_792_458.0 / scene.n_water * dt / 2 * cos_w
+    if not (isinstance(min_bin_offset, int) and 0 <= min_bin_offset <= 4095):
+        raise ValueError(f"min_bin_offset must be an integer in 0..4095, not {min_bin_offset!r}")
+    first_bin_m = max(first_bin_m, min_bin_offset * m_per_sample)
     n_bins = n_templates - 1
     width_m = (scene.max_depth_m - first_bin_m) / max(n_bins, 1)
     depths = np.array([0.0] + [first_bin_m + (k + 0.5) * width_m for k in range(n_bins)])
@@ -416,7 +424,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         bank=bank,
         templates=templates,
         bin_depths_m=depths,
-        bin_offset=max(by_name("bin_offset").lo, round(first_bin_m / m_per_sample)),
+        bin_offset=max(by_name("bin_offset").lo, min_bin_offset,
+                       round(first_bin_m / m_per_sample)),
         bin_len=max(1, round(width_m / m_per_sample)),
         out_shift=shift,
         snr_loss_db=quantization_snr_loss_db(templates, bank),

@@ -591,7 +591,13 @@ def onchip_fpga_time(n_samples: float, taps: int, figures: dict | None) -> dict 
             best = (key, f)
     if best is None:
         return None
-    key, f = best
+    return fpga_time(*best, n_samples)
+
+
+def fpga_time(key: str, f: dict, n_samples: float) -> dict:
+    """The time per waveform of the build ``key`` (its figure ``f``) for frames of
+    ``n_samples`` samples: ``ceil(n_samples / lanes) + frame_gap_clocks`` clocks at its
+    ``fmax_mhz``. Keys as :func:`onchip_fpga_time` returns."""
     lanes = int(f.get("lanes", 1))
     clocks = math.ceil(n_samples / lanes) + int(f.get("frame_gap_clocks", 0))
     return {"us_per_waveform": _r(clocks / f["fmax_mhz"], 4), "key": key, "lanes": lanes,
@@ -622,7 +628,8 @@ def load_fpga_figures(path=None) -> dict | None:
     return json.loads(path.read_text()) if path.exists() else None
 
 
-def targets(methods: list, fpga: dict | None = None, serial: dict | None = None) -> dict:
+def targets(methods: list, fpga: dict | None = None, serial: dict | None = None,
+            builds: list | None = None) -> dict:
     """Whether the issue's targets are met, from the ``methods`` list of the JSON.
 
     The *best* method is the waveform (non-photon) method meeting most of the four accuracy
@@ -635,6 +642,13 @@ def targets(methods: list, fpga: dict | None = None, serial: dict | None = None)
     (method name -> us per waveform, the minimum of repeats of ``albcap bench speed`` on the
     same shots) replaces the sweep's time of the offline method when it has it: the sweep's
     chunks run in parallel on a shared machine, which inflated that time up to five times.
+
+    ``builds`` (this variant's rows of ``model.builds.load_builds``: ``key``, ``name``,
+    ``fpga``, ``summary``) are the measured builds of the join, each with the bank it can
+    hold run through the on-chip path on the same shots. With them, the two on-chip targets
+    are scored with one build: the fastest whose RMSE is at most twice the best offline
+    method's and which gave no confident wrong depth; if none qualifies, the main study's
+    ``adaptive_mf`` and ``fpga`` as without them.
     """
     def acc(m):
         s = m["summary"]
@@ -669,13 +683,18 @@ def targets(methods: list, fpga: dict | None = None, serial: dict | None = None)
                and m["summary"]["rmse_m"] is not None]
     if chip is not None and offline and chip["summary"]["rmse_m"] is not None:
         ref = min(offline, key=rmse)
+        build = _chosen_build(builds, ref)
+        if build is not None:  # the build's own bank and chip time, named in the rows
+            chip = {**chip, "name": build["name"], "summary": build["summary"],
+                    "us_per_waveform": build["us_per_waveform"]}
+            fpga = build["fpga"]
         ratio = chip["summary"]["rmse_m"] / ref["summary"]["rmse_m"]
         out.append({"id": "onchip_rmse", "text": "on-chip adaptive RMSE <= 2 x best offline",
-                    "method": f"adaptive_mf vs {ref['name']}", "value": _r(ratio, 3),
+                    "method": f"{chip['name']} vs {ref['name']}", "value": _r(ratio, 3),
                     "met": ratio <= 2.0})
         if chip["us_per_waveform"] and ref["us_per_waveform"]:
             model = ref["us_per_waveform"] / chip["us_per_waveform"]
-            row = {"id": "onchip_speed", "method": f"adaptive_mf vs {ref['name']}",
+            row = {"id": "onchip_speed", "method": f"{chip['name']} vs {ref['name']}",
                    "model_speedup": _r(model, 1),
                    "model_us_per_waveform": chip["us_per_waveform"],
                    "offline_us_per_waveform": ref["us_per_waveform"]}
@@ -698,6 +717,16 @@ def targets(methods: list, fpga: dict | None = None, serial: dict | None = None)
             row.update(value=_r(speed, 1), met=speed >= 100.0)
             out.append(row)
     return {"targets": out, "all_met": bool(out) and all(t["met"] for t in out)}
+
+
+def _chosen_build(builds: list | None, ref: dict) -> dict | None:
+    """The fastest of ``builds`` within twice ``ref``'s RMSE with no confident wrong depth
+    (``None``: no such build, or no builds)."""
+    ok = [b for b in builds or ()
+          if b["fpga"] and b["summary"]["rmse_m"] is not None
+          and b["summary"]["rmse_m"] <= 2.0 * ref["summary"]["rmse_m"]
+          and not b["summary"].get("n_wrong_confident")]
+    return min(ok, key=lambda b: b["fpga"]["us_per_waveform"]) if ok else None
 
 
 def study_base(depths):
@@ -818,22 +847,28 @@ def mean_samples(scene, depths, lo_hi=SUMMARY_RANGE_M) -> float:
     return float(np.mean([make_shots(scene, float(d), 1, 0).adc.shape[-1] for d in sel]))
 
 
-def score(res: dict, figures: dict | None = None, speed: dict | None = None) -> dict:
+def score(res: dict, figures: dict | None = None, speed: dict | None = None,
+          builds: dict | None = None) -> dict:
     """``res`` (the accuracy JSON) with its ``targets`` and those of its ``unstretched``
     variant (re)computed, the on-chip speed from ``figures`` (default: the recorded
     :data:`FPGA_FIGURES`, if any) and the offline time from ``speed`` where it has the
     variant's best offline method (default: :func:`load_speed_figures`; the bench times the
-    ``unstretched`` batch). ``albcap chart`` calls it too, so the page shows the latest
-    figures."""
+    ``unstretched`` batch) and the measured builds from ``builds`` (default
+    ``model.builds.load_builds``: ``albcap bench builds``, see :func:`targets`). ``albcap
+    chart`` calls it too, so the page shows the latest figures."""
+    from .builds import load_builds
+
     figures = load_fpga_figures() if figures is None else figures
     speed = (load_speed_figures() or {}) if speed is None else speed
+    builds = (load_builds() or {}) if builds is None else builds
     n = res.get("samples_per_waveform_mean")
     if n is None and figures:  # a JSON from before the field: the same computation
         n = mean_samples(study_base(res["depths_m"]), res["depths_m"])
     fpga = onchip_fpga_time(n, res.get("onchip_taps", 64), figures) if n else None
-    out = {**res, **targets(res["methods"], fpga, speed.get("main"))}
+    out = {**res, **targets(res["methods"], fpga, speed.get("main"), builds.get("main"))}
     uns = res.get("variants", {}).get("unstretched")
     if uns:
         out["variants"] = {**res["variants"], "unstretched": {
-            **uns, **targets(uns["methods"], fpga, speed.get("unstretched"))}}
+            **uns, **targets(uns["methods"], fpga, speed.get("unstretched"),
+                             builds.get("unstretched"))}}
     return out

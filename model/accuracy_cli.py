@@ -7,6 +7,8 @@ the charts; ``albcap chart --results docs/results.md`` also refreshes the page's
 tables. Sweeps run on Dask: local processes by default, ``--scheduler sync|threads|processes``
 or the address of a ``dask.distributed`` scheduler. ``albcap bench speed [--json]`` times
 methods serially on the sweep's ``unstretched`` batch (``model.speed``) and writes no file.
+``albcap bench builds [--json] [--out FILE]`` runs the on-chip path with the bank each measured
+FPGA build of the join can hold (``model.builds``).
 """
 
 from __future__ import annotations
@@ -158,6 +160,35 @@ def _cmd_bench_speed(args) -> int:
     return 0
 
 
+def _cmd_bench_builds(args) -> int:
+    from .builds import bench_builds
+
+    res = bench_builds(shots=_count(args.shots, "shots"), seed=args.seed,
+                       depths=_depths(args.depths) or None,
+                       scheduler=_scheduler(args.scheduler), progress=not args.no_progress)
+    if args.out:  # whole or not at all: a temporary file renamed into place
+        out = Path(args.out)
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(json.dumps(res, indent=1) + "\n")
+        tmp.replace(out)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    print(f"{res['method']} with each measured build's bank, {res['shots_per_depth']} shots per "
+          f"depth, {len(res['depths_m'])} depths, seed {res['seed']} ({res['elapsed_s']:g} s)")
+    print(f"{'build':44s} {'taps':>4s} {'1st bin':>7s} {'variant':12s} {'us/wf chip':>10s} "
+          f"{'RMSE cm':>8s} {'det %':>6s} {'reach m':>7s} {'conf. wrong':>11s}")
+    for b in res["builds"]:
+        for name, v in b["variants"].items():
+            s = v["method"]["summary"]
+            reach = "-" if s["max_depth_m"] is None else f"{s['max_depth_m']:g}"
+            print(f"{b['key']:44s} {b['taps']:>4d} {b['bank_min_bin_offset']:>7d} {name:12s} "
+                  f"{v['fpga']['us_per_waveform']:>10.3f} {_f(s['rmse_m']):>8s} "
+                  f"{_f(s['detection_rate'], 100, 1):>6s} {reach:>7s} "
+                  f"{s['n_wrong_confident']:>11d}")
+    return 0
+
+
 def _read(path: str, what: str):
     p = Path(path)
     if not p.exists():
@@ -173,15 +204,16 @@ def _cmd_chart(args) -> int:
 
     acc = _read(args.accuracy, "accuracy")
     reg = _read(args.regimes, "regimes")
+    builds = _read(args.builds, "builds")
     if acc is None and reg is None:
         raise ValueError(f"neither {args.accuracy} nor {args.regimes} exists; run "
                          "`albcap bench accuracy` or `albcap bench regimes` first")
-    for path in write_charts(acc, reg, args.out_dir):
+    for path in write_charts(acc, reg, args.out_dir, builds):
         print(f"wrote {path}")
     if args.results:
         page = Path(args.results)
         text = page.read_text()
-        new = render_results(text, result_tables(acc, reg))
+        new = render_results(text, result_tables(acc, reg, builds))
         if new != text:
             page.write_text(new)
             print(f"updated {page}")
@@ -213,6 +245,7 @@ def register(sub) -> None:
                                      "and regimes benches' JSON")
     p.add_argument("--accuracy", default=str(FIGURES / "accuracy.json"))
     p.add_argument("--regimes", default=str(FIGURES / "regimes.json"))
+    p.add_argument("--builds", default=str(FIGURES / "builds.json"))
     p.add_argument("--out-dir", default=str(FIGURES), help="where the PNG and SVG go")
     p.add_argument("--results", help="markdown page whose generated tables to refresh "
                                      "(docs/results.md)")
@@ -220,7 +253,7 @@ def register(sub) -> None:
 
 
 def register_bench(bench_sub) -> None:
-    """Add ``albcap bench accuracy``, ``albcap bench regimes`` and ``albcap bench speed``."""
+    """Add ``albcap bench accuracy``, ``regimes``, ``speed`` and ``builds``."""
     p = bench_sub.add_parser("accuracy", help="bias, std, RMSE, detection and us/waveform of "
                                               "every method over a depth sweep (Dask)")
     _common(p, "accuracy")
@@ -243,3 +276,17 @@ def register_bench(bench_sub) -> None:
     p.add_argument("--out", help="also write the JSON here (docs/figures/speed.json is what "
                                  "the targets of the unstretched variant use)")
     p.set_defaults(func=_cmd_bench_speed)
+    p = bench_sub.add_parser("builds", help="the on-chip path with the bank each measured FPGA "
+                                            "build of the join holds: chip time against "
+                                            "accuracy (model.builds)")
+    p.add_argument("--json", action="store_true", help="print the JSON instead of a table")
+    p.add_argument("--shots", default="250", help="shots per depth (default 250, the accuracy "
+                                                  "study's side studies)")
+    p.add_argument("--depths", help="comma-separated depths, m (default: 1..40 m)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scheduler", default="processes",
+                   help="sync, threads, processes (default) or a dask.distributed address")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--out", help="also write the JSON here (docs/figures/builds.json is what "
+                                 "the targets use)")
+    p.set_defaults(func=_cmd_bench_builds)

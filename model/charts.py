@@ -12,7 +12,10 @@
   matched filter, and their ratio (seed 001 Figs. 9-10);
 * ``accuracy_stitch``: the ``paper`` and ``linear`` stitch, their transfer curves and the
   depth bias of the on-chip methods with each;
-* ``accuracy_regimes``: failure rate against each stability regime's parameter.
+* ``accuracy_regimes``: failure rate against each stability regime's parameter;
+* ``accuracy_builds`` (from ``docs/figures/builds.json``, ``albcap bench builds``): the chip's
+  time per waveform against RMSE for each measured FPGA build of the join with the bank it
+  holds, with the two on-chip targets (2 x the best offline RMSE, 100 x its serial time).
 
 :func:`render_results` fills the tables of ``docs/results.md`` between
 ``<!-- begin table:NAME -->`` and ``<!-- end table:NAME -->`` (the markers of
@@ -248,13 +251,68 @@ def regimes_chart(reg: dict, out_dir: Path) -> list[Path]:
     return _save(fig, out_dir, "accuracy_regimes", rect=(0, 0.06, 1, 0.96))
 
 
-def write_charts(acc: dict | None, reg: dict | None, out_dir=FIGURES) -> list[Path]:
+def _best_offline(methods: list) -> dict | None:
+    """The float, non-photon method of lowest RMSE over 1-26 m (the targets' reference)."""
+    ok = [m for m in methods if not m["bit_exact"] and not m["photon"]
+          and m["summary"]["rmse_m"] is not None]
+    return min(ok, key=lambda m: m["summary"]["rmse_m"]) if ok else None
+
+
+def builds_chart(builds: dict, acc: dict | None, out_dir: Path) -> list[Path]:
+    """The chip's time per waveform against RMSE over 1-26 m, one point per measured build
+    and variant, with the targets' lines where the accuracy JSON gives the reference."""
+    from .accuracy import load_speed_figures
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    serial = load_speed_figures() or {}
+    colours = {"unstretched": "C0", "main": "C3"}
+    for variant, colour in colours.items():
+        pts = [(b, b["variants"][variant]) for b in builds["builds"] if variant in b["variants"]]
+        for b, v in pts:
+            r = v["method"]["summary"]["rmse_m"]
+            if r is None:
+                continue
+            us = v["fpga"]["us_per_waveform"]
+            ax.scatter(us, r * 100, color=colour, marker="s", zorder=3)
+            det = v["method"]["summary"]["detection_rate"]
+            ax.annotate(f"{b['lanes']} x {b['taps']} taps, {b['fmax_mhz']:g} MHz ({det:.0%})",
+                        (us, r * 100), xytext=(5, 4), textcoords="offset points", fontsize=7,
+                        color=colour)
+        methods = None
+        if acc is not None:
+            methods = acc["methods"] if variant == "main" else \
+                acc.get("variants", {}).get(variant, {}).get("methods")
+        ref = _best_offline(methods) if methods else None
+        if ref is None:
+            continue
+        label = "Monte Carlo bottom" if variant == "main" else "seed 000's bottom (unstretched)"
+        ax.axhline(2 * ref["summary"]["rmse_m"] * 100, color=colour, ls="--", lw=1,
+                   label=f"{label}: 2 x RMSE of {ref['name']}")
+        us_ref = (serial.get(variant) or {}).get(ref["name"])
+        if us_ref:
+            ax.axvline(us_ref / 100, color=colour, ls=":", lw=1,
+                       label=f"{label}: {ref['name']} serial time / 100")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("chip time per waveform, us (log; measured fmax, lanes, threshold wait)")
+    ax.set_ylabel("RMSE of detected depths, 1-26 m, cm (log)")
+    ax.set_title("On-chip builds: speed against accuracy (adaptive filter + detector)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="upper right", fontsize=7)
+    return _save(fig, out_dir, "accuracy_builds")
+
+
+def write_charts(acc: dict | None, reg: dict | None, out_dir=FIGURES,
+                 builds: dict | None = None) -> list[Path]:
     """Every chart the given results allow; returns the files written."""
     out_dir = Path(out_dir)
     paths = []
     if acc is not None:
         for f in (pareto_chart, bias_std_chart, channels_chart, extractions_chart, stitch_chart):
             paths += f(acc, out_dir)
+    if builds is not None:
+        paths += builds_chart(builds, acc, out_dir)
     if reg is not None:
         paths += regimes_chart(reg, out_dir)
     return paths
@@ -421,9 +479,28 @@ def _run_table(acc: dict | None, reg: dict | None) -> str:
     return "\n".join(rows)
 
 
-def result_tables(acc: dict | None, reg: dict | None) -> dict[str, str]:
+def _builds_table(builds: dict) -> str:
+    """Per measured build and variant: the bank, the chip's time and the accuracy."""
+    rows = ["| build (`albcap_filter_detect`) | DSPs | fmax MHz | taps | first switch, samples "
+            "| variant | chip us/waveform | RMSE cm | detection % | reach m | confident wrong |",
+            "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+    for b in builds["builds"]:
+        for name, v in b["variants"].items():
+            s = v["method"]["summary"]
+            reach = "-" if s["max_depth_m"] is None else f"{s['max_depth_m']:g}"
+            rows.append(f"| {b['lanes']} lanes x {b['taps_max']} | {b['dsps']} | "
+                        f"{b['fmax_mhz']:g} | {b['taps']} | >= {b['bank_min_bin_offset']} | "
+                        f"{name} | {v['fpga']['us_per_waveform']:.3f} | {_cm(s['rmse_m'], 2)} "
+                        f"| {_pct(s['detection_rate'])} | {reach} | {s['n_wrong_confident']} |")
+    return "\n".join(rows)
+
+
+def result_tables(acc: dict | None, reg: dict | None,
+                  builds: dict | None = None) -> dict[str, str]:
     """Every generated table of ``docs/results.md``, by marker name."""
     t = {"run": _run_table(acc, reg)}
+    if builds is not None:
+        t["builds"] = _builds_table(builds)
     if acc is not None:
         from .accuracy import score
 
@@ -448,7 +525,7 @@ def render_results(text: str, tables: dict[str, str]) -> str:
     A table whose results were not given keeps its old content.
     """
     known = {"run", "summary", "core", "papers", "targets", "per_depth", "channels", "stitch",
-             "regimes", "unstretched", "unstretched_summary", "unstretched_targets"}
+             "regimes", "unstretched", "unstretched_summary", "unstretched_targets", "builds"}
 
     def fill(m: re.Match) -> str:
         name = m.group(2)

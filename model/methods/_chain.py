@@ -41,6 +41,15 @@ class ChainMethod(Method):
         filter's output shift for its 0..765 range, as ``model.demo.demo_rows`` does.
     k_thr_q4 : int, optional
         The detector's threshold factor (1/16); default the survey's ``SURVEY_K_THR_Q4``.
+    taps : int
+        Taps per template of the bank (default :data:`N_TAPS` = 64, the survey's; 2..64). A
+        build with more lanes holds shorter templates (``lanes x taps_max`` DSPs), and the
+        on-chip time of a sweep is that of the fastest measured build whose ``taps_max``
+        holds them (``model.accuracy.onchip_fpga_time``).
+    min_bin_offset : int
+        Samples below the surface before the bank's first template switch, at least (default
+        0: the survey's 3 m); a build of more lanes is exact only from its own
+        ``FilterDetect.min_bin_offset`` on (``firmware_host.coeffs.scene_bank``).
     walk : bool
         Correct the depths with the bank's range-walk table (default), as ``albcap depth``
         does with a bank file from ``albcap coeffs``; False gives the raw depths.
@@ -49,7 +58,14 @@ class ChainMethod(Method):
     bit_exact = True
     n_templates = 1
 
-    def __init__(self, stitch: str = "linear", walk: bool = True, k_thr_q4: int | None = None):
+    def __init__(self, stitch: str = "linear", walk: bool = True, k_thr_q4: int | None = None,
+                 taps: int = N_TAPS, min_bin_offset: int = 0):
+        if not (isinstance(taps, int) and not isinstance(taps, bool) and 2 <= taps <= N_TAPS):
+            raise ValueError(f"taps must be an integer in 2..{N_TAPS}, not {taps!r}")
+        if not (isinstance(min_bin_offset, int) and not isinstance(min_bin_offset, bool)
+                and 0 <= min_bin_offset <= 4095):
+            raise ValueError(f"min_bin_offset must be an integer in 0..4095, "
+                             f"not {min_bin_offset!r}")
         if stitch not in ("linear", "paper"):
             raise ValueError(f"stitch must be 'linear' or 'paper', not {stitch!r}")
         if k_thr_q4 is not None and not (isinstance(k_thr_q4, int) and 0 <= k_thr_q4 <= 4095):
@@ -57,6 +73,8 @@ class ChainMethod(Method):
         self.stitch = stitch
         self.walk = walk
         self.k_thr_q4 = k_thr_q4
+        self.taps = taps
+        self.min_bin_offset = min_bin_offset
         self._sb = None
         self._cfg = None
         self._walk = None
@@ -68,15 +86,17 @@ class ChainMethod(Method):
 
         self._confident_q4 = CONFIDENT_K_THR_Q4
         linear = self.stitch == "linear"
-        sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=N_TAPS,
-                        x_range=X_RANGE if linear else (0, 765))
+        sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=self.taps,
+                        x_range=X_RANGE if linear else (0, 765),
+                        min_bin_offset=self.min_bin_offset)
         self._cfg = Config(**survey_registers(sb, stitch_mode=1 if linear else 0),
                            **_stitch_registers(setup))
         if self.k_thr_q4 is not None:
             self._cfg = self._cfg.replace(k_thr_q4=self.k_thr_q4)
         self._sb = sb
         # compile (or load) the filter-and-detector loop here, so estimate() times the chain only
-        run_chain(np.zeros((1, 3, N_TAPS), np.uint8), sb.bank, self._cfg.replace(gate_len=N_TAPS))
+        run_chain(np.zeros((1, 3, self.taps), np.uint8), sb.bank,
+                  self._cfg.replace(gate_len=self.taps))
         self._walk = calibrate_walk(setup.scene, sb.bank, self._cfg) if self.walk else None
 
     def estimate(self, shots: Shots) -> Estimate:
