@@ -27,11 +27,12 @@ bench: $(VENV)/.installed
 	$(VENV)/bin/albcap bench model --json
 
 # docs/results.md from scratch: the accuracy sweep, the stability suite, the serial speed
-# bench, then charts and tables
+# bench, the on-chip builds (from the recorded FPGA figures), then charts and tables
 results: $(VENV)/.installed
 	$(VENV)/bin/albcap bench accuracy --no-progress
 	$(VENV)/bin/albcap bench regimes --no-progress
 	$(VENV)/bin/albcap bench speed --out docs/figures/speed.json
+	$(VENV)/bin/albcap bench builds --no-progress --out docs/figures/builds.json
 	$(VENV)/bin/albcap chart --results docs/results.md
 
 synth: $(VENV)/.installed

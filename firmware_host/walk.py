@@ -22,7 +22,7 @@ from model.depth import event_time_s
 from model.matched_filter import Bank
 from model.registers import Config
 
-__all__ = ["CALIBRATION_SEED", "WALK_NODES", "calibrate_walk"]
+__all__ = ["CALIBRATION_SEED", "WALK_NODES", "calibrate_walk", "calibrated_templates"]
 
 #: Seed of the calibration shots; evaluation sweeps use other seeds.
 CALIBRATION_SEED = 0xCA1B
@@ -60,7 +60,8 @@ def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
         Per template ``k``: ``walk[k, 0]`` the raw separations (samples, increasing) and
         ``walk[k, 1]`` the corrections (samples) there; ``model.depth.walk_correction``
         interpolates linearly and holds the end values outside. A template with too few
-        detections gets a zero table (no correction).
+        detections gets a zero table (no correction): separations ``0 .. nodes - 1`` and
+        corrections 0, which :func:`calibrated_templates` tells apart.
     """
     from sim.shots import make_shots
 
@@ -100,3 +101,19 @@ def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
         walk[k, 0] = [np.median(x[c]) for c in cells]
         walk[k, 1] = [np.median(y[c]) for c in cells]
     return walk
+
+
+def calibrated_templates(walk: np.ndarray) -> np.ndarray:
+    """Which templates of a :func:`calibrate_walk` table were calibrated, bool (K,).
+
+    A template whose table is the zero table had too few calibration detections (a bin past
+    the water's reach, or one the calibration depths missed): its depths carry whatever walk
+    the template leaves, unmeasured. With short templates cut from a long stretched return
+    that walk can be metres (the window holds the return's tail around its centroid, not its
+    peak), so a depth from such a template is not one to stand behind.
+    """
+    walk = np.asarray(walk)
+    if walk.ndim != 3 or walk.shape[1] != 2:
+        raise ValueError(f"walk must have shape (K, 2, nodes), not {walk.shape}")
+    zero = (walk[:, 0] == np.arange(walk.shape[2])).all(axis=1) & (walk[:, 1] == 0).all(axis=1)
+    return ~zero

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
-from firmware_host.walk import calibrate_walk
+from firmware_host.walk import calibrate_walk, calibrated_templates
 from model.chain import run_chain
 from model.depth import depth_from_peaks, walk_correction
 from model.registers import Config
@@ -91,3 +91,36 @@ def test_calibration_arguments_are_checked(small_survey):
         calibrate_walk(scene, sb.bank, cfg, shots=0)
     with pytest.raises(ValueError, match="need 0 < first_m < last_m"):
         calibrate_walk(scene, sb.bank, cfg, first_m=5.0, last_m=4.0)
+
+
+def test_uncalibrated_templates_are_told_apart(small_survey):
+    """Calibrated only to 14 m, the 4-template bank (bins to 40 m) has deep templates that saw
+    too few detections: their tables are the zero table, and only theirs."""
+    scene, sb, cfg = small_survey
+    walk = calibrate_walk(scene, sb.bank, cfg, first_m=2.0, last_m=14.0, shots=2)
+    ok = calibrated_templates(walk)
+    zero = [not walk[k, 1].any() for k in range(4)]
+    assert ok.dtype == bool and ok.shape == (4,)
+    assert list(ok) == [not z for z in zero] and ok.any() and not ok.all()
+    zero_table = np.zeros((2, 2, 3))
+    zero_table[:, 0] = np.arange(3)
+    assert not calibrated_templates(zero_table).any()
+    with pytest.raises(ValueError, match=r"walk must have shape \(K, 2, nodes\), not \(2, 3\)"):
+        calibrated_templates(np.zeros((2, 3)))
+
+
+def test_bottoms_of_uncalibrated_templates_are_weak():
+    """The on-chip methods do not stand behind a depth from a template the calibration could
+    not measure: with every table zero, every detection is weak (and still a detection)."""
+    from model.methods import METHODS
+
+    scene = survey_scene(preset("seed000"))
+    shots = make_shots(scene, np.full(6, 8.0), 6, 5)
+    m = METHODS["adaptive_mf"]()
+    m.prepare(shots.setup)
+    sure = m.estimate(shots)
+    assert sure.detected.all() and sure.confident.all()
+    m._calibrated = np.zeros_like(m._calibrated)
+    weak = m.estimate(shots)
+    np.testing.assert_array_equal(weak.depth_m, sure.depth_m)
+    assert weak.detected.all() and not weak.confident.any()

@@ -10,7 +10,8 @@ range-walk table (``firmware_host.walk.calibrate_walk``: shots at random depths 
 scene, seeded apart from every evaluation, through the same chain; what ``albcap coeffs``
 stores in a bank file and ``albcap depth`` applies). A depth whose peaks do not both stand 10
 x noise above the baseline (``CONFIDENT_K_THR_Q4``) is *weak* (``Estimate.confident`` False;
-``model.depth.confident_peaks``).
+``model.depth.confident_peaks``), and so is a bottom found with a template the range-walk
+calibration could not measure (``firmware_host.walk.calibrated_templates``).
 """
 
 from __future__ import annotations
@@ -78,11 +79,12 @@ class ChainMethod(Method):
         self._sb = None
         self._cfg = None
         self._walk = None
+        self._calibrated = None
 
     def prepare(self, setup: Setup) -> None:
         """Build the bank and the registers for the setup's scene (and compile the kernel)."""
         from firmware_host.coeffs import CONFIDENT_K_THR_Q4, scene_bank, survey_registers
-        from firmware_host.walk import calibrate_walk
+        from firmware_host.walk import calibrate_walk, calibrated_templates
 
         self._confident_q4 = CONFIDENT_K_THR_Q4
         linear = self.stitch == "linear"
@@ -98,6 +100,7 @@ class ChainMethod(Method):
         run_chain(np.zeros((1, 3, self.taps), np.uint8), sb.bank,
                   self._cfg.replace(gate_len=self.taps))
         self._walk = calibrate_walk(setup.scene, sb.bank, self._cfg) if self.walk else None
+        self._calibrated = None if self._walk is None else calibrated_templates(self._walk)
 
     def estimate(self, shots: Shots) -> Estimate:
         """Depths by the bit-exact chain; a frame shorter than the detector's windows (baseline,
@@ -124,6 +127,8 @@ class ChainMethod(Method):
         ok = dep.valid & np.isfinite(dep.depth_m) & (dep.depth_m > 0)
         sure = confident_peaks(p.surface.amplitude, p.bottom.amplitude, p.noise,
                                min_thr=cfg.min_thr, confident_q4=self._confident_q4)
+        if self._walk is not None:
+            sure = sure & self._calibrated[np.clip(p.bottom.template, 0, len(self._calibrated) - 1)]
         ts = event_time_s(p.surface.position_q8, p.surface.template, self._sb.bank.ref_offsets,
                           self._sb.bank.L, st.dt_s)
         tb = event_time_s(p.bottom.position_q8, p.bottom.template, self._sb.bank.ref_offsets,
