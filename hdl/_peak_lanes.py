@@ -27,7 +27,8 @@ stall; only the input register ``D1`` holds a beat):
   ``k(c-1) = k(c+1)``, ``c >= W + 2P``, ``y[c] > mu + thr`` (the compares, then their AND);
   (D3) the surface: first-peak priority across the lanes, the surface message, and per lane
   "eligible as a bottom" (``c >= s + min_sep``: lane distances when the surface is in this
-  beat or the one before, else against a registered ``s + min_sep``); then a segmented
+  beat or one of the two before, else a compare with a registered ``s + min_sep`` made as the
+  beat enters D2); then a segmented
   prefix minimum across the lanes (rule 2; the surface's lane starts the segment), the
   running minimum carried from beat to beat (its loop cut in two: compares, then the
   select), the key per lane (rule 0: the lane, 1: ``y``, 2: the rise, kept only above
@@ -95,17 +96,17 @@ def latencies(lanes: int) -> tuple[int, int, int]:
         conjunction into D2, D3 raises the message).
     result
         From accepting the frame's last beat to its result beat being valid, when the beat
-        does not wait: D1 to C is ``4 levels + 11`` clocks, then the divider's two loading
+        does not wait: D1 to C is ``4 levels + 11`` clocks, then the divider's three loading
         clocks, its steps and ``o.valid``.
     bubble
         The most clocks a beat waits in ``D1`` for its frame's threshold, counted as extra
         latency: the flag and mask stages, two trees of ``levels`` clocks, the sum, ``mu``,
-        ``y - mu``, its magnitude, the sum, the shift and the cap of ``noise``, two multiplier
-        clocks, the partial-product sum, ``thr``, the bound's sum and cap and the registered tag
-        match (into ``go``), from the beat that closes the noise window.
+        ``y - mu``, its magnitude, the sum, the shift and the register of ``noise``, two
+        multiplier clocks, the partial-product sum, ``thr``, the bound's sum and cap and the
+        registered tag match (into ``go``), from the beat that closes the noise window.
 
-    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 24, 16)``, 4 lanes ``(4, 32, 20)``,
-    8 lanes ``(4, 36, 22)``.
+    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 25, 16)``, 4 lanes ``(4, 33, 20)``,
+    8 lanes ``(4, 37, 22)``.
     """
     d = _levels(lanes)
     return SURFACE_LATENCY, RESULT_LATENCY + 4 * d, THRESHOLD_BUBBLE + 2 * d
@@ -170,6 +171,14 @@ def elaborate(top, platform):
     # ---- positions from the registers (registered: write them between frames) ----
     P = Signal(range((1 << _P_MAX_LOG2) + 1))
     m.d.comb += P.eq(1 << cfg.noise_log2)
+    # noise_log2 one-hot (0 to its largest), for the window shifts: an AND-OR of shifted
+    # copies is two LUT levels, where Yosys's shifter was three and a mux (a worst path)
+    log2_is = [_reg(m, cfg.noise_log2 == k, 1, f"log2_is{k}", True)
+               for k in range(_P_MAX_LOG2 + 1)]
+
+    def window_shift(value):
+        """``value >> noise_log2`` (``noise_log2`` at most its register's largest)."""
+        return reduce(or_, [Mux(on, value >> k, 0) for k, on in enumerate(log2_is)])
     W = top.taps - 1
     # (reset-less: they follow the registers through a reset, so the first beat meets them).
     # Per lane j the bound minus j, so that "sample base + j at or past X" is one compare of
@@ -190,7 +199,7 @@ def elaborate(top, platform):
                for c in range(L + 1)]
     first_needs = [_reg(m, W + 2 * P + 2 <= c, 1, f"first_needs{c}", True)
                    for c in range(L + 1)]
-    ms_le = [_reg(m, cfg.min_sep <= j, 1, f"ms_le{j}", True) for j in range(2 * L)]
+    ms_le = [_reg(m, cfg.min_sep <= j, 1, f"ms_le{j}", True) for j in range(3 * L)]
     # min_sep + j - 1 per lane, so that "c + min_sep" of a lane's centre is one add; capped
     # where no centre of a frame can reach it
     cap = (1 << _POS.width) - 1
@@ -218,8 +227,11 @@ def elaborate(top, platform):
     m.d.comb += [top.i.ready.eq(~s_valid), accept.eq(top.i.valid & ~s_valid),
                  free.eq(~d1_valid | go)]
     with m.If(accept):
+        # (the compare is made on the register n_next, the port's first only chooses it)
         m.d.sync += [n_next.eq(base_in + d.count),
-                     next_needs.eq(Cat(base_in >= at for at in need_at))]
+                     next_needs.eq(Cat(Mux(d.first, at <= 0,
+                                           ~_sub_sign(m, n_next, at, f"next_needs{c}"))
+                                       for c, at in enumerate(need_at)))]
         with m.If(d.first):
             m.d.sync += tag.eq(tag + 1)
     loads = Signal()  # D1 takes a new beat (from the skid if it holds one)
@@ -263,10 +275,18 @@ def elaborate(top, platform):
     close_mu, close_dev = [], []
     for j in range(L):
         used = Const(j) < d1.count
-        m.d.sync += [s0_mu[j].eq(used & (d1_base >= mu_lo[j]) & (d1_base < mu_hi[j])),
-                     s0_dev[j].eq(used & (d1_base >= mu_hi[j]) & (d1_base < dev_hi[j]))]
-        close_mu.append(used & (d1_base == mu_end[j]))
-        close_dev.append(used & (d1_base == dev_end[j]))
+        # (position compares as subtraction signs, here and below: as compares they left
+        # the carry out of the chain to an extra cell and a LUT, a worst path)
+        past_lo = ~_sub_sign(m, d1_base, mu_lo[j], f"s0_lo{j}")
+        past_hi = ~_sub_sign(m, d1_base, mu_hi[j], f"s0_hi{j}")
+        before_end = _sub_sign(m, d1_base, dev_hi[j], f"s0_end{j}")
+        m.d.sync += [s0_mu[j].eq(used & past_lo & ~past_hi),
+                     s0_dev[j].eq(used & past_hi & before_end)]
+        # "at the window's last sample" as at or past it and not past the window (equalities
+        # of the base were a tree of four LUTs, a worst path)
+        close_mu.append(used & ~_sub_sign(m, d1_base, mu_end[j], f"s0_mu_end{j}") & ~past_hi)
+        close_dev.append(used & ~_sub_sign(m, d1_base, dev_end[j], f"s0_dev_end{j}")
+                         & before_end)
     m.d.sync += [s0_y.eq(d1.y), s0.valid.eq(fresh), s0.first.eq(d1.first),
                  s0.close_mu.eq(reduce(or_, close_mu)), s0.close_dev.eq(reduce(or_, close_dev)),
                  s0.tag.eq(d1_tag)]
@@ -281,7 +301,7 @@ def elaborate(top, platform):
     with m.If(t.valid):
         m.d.sync += mu_sum.eq(Mux(t.first, 0, mu_sum) + mu_tree)
     with m.If(sd[depth + 1].valid & sd[depth + 1].close_mu):
-        m.d.sync += mu.eq(mu_sum >> cfg.noise_log2)
+        m.d.sync += mu.eq(window_shift(mu_sum))
     # |y - mu| on the noise lanes, the clock after mu is registered for the closing beat
     dy = _delay(m, s1_y, depth + 2, "dev_y")[-1]
     dm = _delay(m, s1_dev, depth + 2, "dev_m")[-1]
@@ -299,12 +319,18 @@ def elaborate(top, platform):
         m.d.sync += dev_sum.eq(Mux(t.first, 0, dev_sum) + dev_tree)
     dev_closed = _reg(m, t.valid & t.close_dev, 1, "dev_closed")
     dev_tag = _reg(m, t.tag, TAG_WIDTH, "dev_tag")
-    # noise = min(dev_sum >> noise_log2, NOISE_MAX): the shift, then the cap a clock later
+    # noise = min(dev_sum >> noise_log2, NOISE_MAX): the shift, then a clock later the
+    # register the threshold reads. The cap never bites here: y and mu are s24, so each of
+    # the P terms |y - mu| is at most 2^24 - 1 = NOISE_MAX, and so is their mean (the cap, as
+    # a compare or as an OR of the high bits and a mux, was a worst path). The
+    # other caps are bit tests where the bound is a power of two less one, and signs of
+    # subtractions where it is a register.
+    assert NOISE_MAX == (1 << OUT_WIDTH) - 1 == (1 << NOISE_WIDTH) - 1
     noise = Signal(NOISE_WIDTH)
-    noise_full = _reg(m, dev_sum >> cfg.noise_log2, dev_sum.shape(), "noise_full")
+    noise_full = _reg(m, window_shift(dev_sum), unsigned(NOISE_WIDTH), "noise_full")
     full_new = _reg(m, dev_closed, 1, "noise_full_new")
     with m.If(full_new):
-        m.d.sync += noise.eq(Mux(noise_full > NOISE_MAX, NOISE_MAX, noise_full))
+        m.d.sync += noise.eq(noise_full)
     noise_new = _reg(m, full_new, 1, "noise_new")
     noise_tag = _delay(m, dev_tag, 2, "noise_tag")[-1]
     # k_thr_q4 * noise: the DSP blocks' own registers, two clocks, then the partial sum
@@ -321,7 +347,8 @@ def elaborate(top, platform):
     thr = Signal(THR_WIDTH)
     with m.If(prod_new):
         prod_thr = prod >> 4
-        m.d.sync += thr.eq(Mux(prod_thr > cfg.min_thr, prod_thr, cfg.min_thr))
+        m.d.sync += thr.eq(Mux(_sub_sign(m, cfg.min_thr, prod_thr, "thr_floor"), prod_thr,
+                               cfg.min_thr))
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
     # each lane makes one 24-bit compare
     # (the sum, then the cap a clock later)
@@ -330,7 +357,9 @@ def elaborate(top, platform):
     total_new = _delay(m, prod_new, 2, "bound_new")[-1]
     total_tag = _delay(m, prod_tag, 2, "bound_tag")[-1]
     with m.If(total_new):
-        m.d.sync += [bound.eq(Mux(total > _Y_HI, _Y_HI, total)), thr_tag.eq(total_tag)]
+        # (total > _Y_HI: not negative, and a bit at or above the sign of y set)
+        over = ~total[-1] & total[OUT_WIDTH - 1:-1].any()
+        m.d.sync += [bound.eq(Mux(over, _Y_HI, total)), thr_tag.eq(total_tag)]
 
     # ---- D2: the local-maximum tests per lane, as the beat leaves D1 ----
     y1, y2 = Signal(_Y), Signal(_Y)  # the last two samples of the previous beat
@@ -344,15 +373,19 @@ def elaborate(top, platform):
                               "base": _POS, "first": 1, "last": 1, "long": 1,
                               "tag": TAG_WIDTH})
     # D2a registers the compares of each lane, D2 their conjunction (compares and the
-    # six-input AND in one clock were a worst path)
+    # six-input AND in one clock were a worst path). The three 24-bit compares are the signs
+    # of subtractions: as compares, Yosys put two LUTs (the signed overflow) after each carry
+    # chain, and `bound` -> `y > bound` -> D2a was the worst path (6.7 ns)
     d2a = Signal(beat)
     d2a_valid = _reg(m, go, 1, "d2a_valid")
     tests = []
     d2a_cpos = [Signal(_POS, name=f"d2a_cpos{j}") for j in range(L)]  # centre base + j - 1
     for j in range(L):
         a, b, c = ev[j], ev[j + 1], ev[j + 2]
-        lane = [a < b, b >= c, kv[j] == kv[j + 2], (Const(j) < d1.count) & (d1_base >= cand_at[j]),
-                b > bound]
+        lane = [_sub_sign(m, a, b, f"d2a_ab{j}"), ~_sub_sign(m, b, c, f"d2a_bc{j}"),
+                kv[j] == kv[j + 2],
+                (Const(j) < d1.count) & ~_sub_sign(m, d1_base, cand_at[j], f"d2a_cand{j}"),
+                _sub_sign(m, bound, b, f"d2a_thr{j}")]
         tests.append([_reg(m, t, 1, f"d2a_t{j}_{i}") for i, t in enumerate(lane)])
         m.d.sync += d2a_cpos[j].eq(d1_base + (j - 1))
     m.d.sync += [d2a.e[j].eq(v) for j, v in enumerate(ev)]
@@ -372,30 +405,38 @@ def elaborate(top, platform):
         return r
 
     # ---- D3: the surface (first peak of the frame), lanes eligible as a bottom ----
-    # The loop carries found and the surface's lane when it was found in the previous beat;
-    # s + min_sep is registered a clock later (D4) and used from the beat after. No
+    # The loop carries found and the surface's lane when it was found in one of the two
+    # previous beats; s + min_sep is registered a clock later (D4), compared with the centres
+    # as a beat enters D2 (the compare before the selects in D3's clock was a worst path,
+    # 5.7 ns) and used from the third beat after the surface's on. No
     # priority chain sits in front of a wide register: "eligible" needs no first-peak
     # encoder (some peak at i <= j - min_sep exists exactly when the first one does), and the
     # surface's record and the prefix minimum take the registered one-hot lane.
     s_found = Signal()
     s_lane = Signal(L)  # one-hot: the surface was found in the previous beat, in this lane
+    s_lane2 = Signal(L)  # the same for the beat before that
     sep_at = Signal(_SEP)  # s + min_sep, from the second beat after the surface's on
+    # c >= s + min_sep per lane, for the beat entering D2 (valid from the third beat after
+    # the surface's: sep_at is set the clock after the surface's D3)
+    sep_ok = [_reg(m, ~_sub_sign(m, d2a_cpos[j], sep_at, f"d3_sep{j}"), 1, f"d3_sep{j}")
+              for j in range(L)]
     found = s_found & ~d2.first
     pre = [d2_peak[:j + 1].any() for j in range(L)]  # a peak at or before lane j
     fo = [d2_peak[0]] + [d2_peak[j] & ~pre[j - 1] for j in range(1, L)]  # the first, one-hot
     new_s = Signal()
     m.d.comb += new_s.eq(d2_valid & ~found & d2_peak.any())
-    near = s_lane.any()
+    near, near2 = s_lane.any(), s_lane2.any()
     d3_elig = Signal(L)
     for j in range(L):
         sep_new = reduce(or_, [d2_peak[i] & ms_le[j - i] for i in range(j + 1)])
         sep_near = reduce(or_, [s_lane[i] & ms_le[L + j - i] for i in range(L)])
-        sep_old = Mux(near, sep_near, d2_cpos[j] >= sep_at)
+        sep_near2 = reduce(or_, [s_lane2[i] & ms_le[2 * L + j - i] for i in range(L)])
+        sep_old = Mux(near, sep_near, Mux(near2, sep_near2, sep_ok[j]))
         m.d.sync += d3_elig[j].eq(d2_peak[j] & Mux(found, sep_old, sep_new))
     d3_new = Signal(L)  # the surface's lane, one-hot, if found in this beat
     m.d.sync += d3_new.eq(Mux(new_s, Const(0, L) | sum(fo[j] << j for j in range(L)), 0))
     with m.If(d2_valid):
-        m.d.sync += [s_found.eq(found | new_s),
+        m.d.sync += [s_found.eq(found | new_s), s_lane2.eq(s_lane),
                      s_lane.eq(Mux(new_s, Const(0, L) | sum(fo[j] << j for j in range(L)), 0))]
     # the surface message, raised at the D3 edge, held until taken; a newer one replaces it
     with m.If(top.surface.ready):
@@ -422,9 +463,14 @@ def elaborate(top, platform):
         for j in range(L)]))
     with m.If(d3_new.any()):
         m.d.sync += srec.eq(s_new)
-    with m.If(vd[1] & bd[1].last):
-        m.d.sync += s_fin.eq(Mux(d3_new.any(), s_new.as_value(),
-                                 Mux(s_found, srec.as_value(), 0)))
+    # The snapshot a clock after the last beat's D4, from srec (which then holds this beat's
+    # surface if it had one; the next frame's surface can land in srec only at that edge):
+    # the choice between the new record, srec and none fanned out to every record bit from
+    # two LUTs was the worst path at two lanes (5.9 ns). The divider loads s_fin much later.
+    s_fin_at = _reg(m, vd[1] & bd[1].last, 1, "s_fin_at")
+    s_fin_found = _reg(m, s_found, 1, "s_fin_found")  # (s_found includes this beat's)
+    with m.If(s_fin_at):
+        m.d.sync += s_fin.eq(Mux(s_fin_found, srec.as_value(), 0))
 
     # ---- rule 2: the minimum of y from the surface on, across the lanes ----
     # A segmented prefix minimum (Hillis-Steele, one level per clock): the surface's lane
@@ -435,8 +481,8 @@ def elaborate(top, platform):
     seg = [d3_new[j] for j in range(L)]
     for lev in range(depth):
         step = 1 << lev
-        take = [_reg(m, seg[j] | (pm[j] < pm[j - step]) if j >= step else 1, 1,
-                     f"pmt{lev + 1}_{j}") for j in range(L)]
+        take = [_reg(m, seg[j] | _sub_sign(m, pm[j], pm[j - step], f"pmt{lev + 1}_{j}")
+                     if j >= step else 1, 1, f"pmt{lev + 1}_{j}") for j in range(L)]
         pm_c = [_reg(m, v, _Y, f"pmc{lev + 1}_{j}") for j, v in enumerate(pm)]
         seg_c = [_reg(m, seg[j] | seg[j - step] if j >= step else seg[j], 1,
                       f"segc{lev + 1}_{j}") for j in range(L)]
@@ -460,9 +506,10 @@ def elaborate(top, platform):
     pl = _reg(m, p_prev, _Y, "vp")
     sel = []
     for j in range(L):
-        pm_lt_p = _reg(m, pm[j] < p_prev, 1, f"vc{j}")
-        pm_lt_x = _reg(m, pm[j] < vmin, 1, f"va{j}")
-        p_lt_x = _reg(m, p_prev < vmin, 1, f"vb{j}")
+        # (the compares as subtraction signs: no LUT after the carry chains)
+        pm_lt_p = _reg(m, _sub_sign(m, pm[j], p_prev, f"vc{j}"), 1, f"vc{j}")
+        pm_lt_x = _reg(m, _sub_sign(m, pm[j], vmin, f"va{j}"), 1, f"va{j}")
+        p_lt_x = _reg(m, _sub_sign(m, p_prev, vmin, f"vb{j}"), 1, f"vb{j}")
         pm_l = _reg(m, pm[j], _Y, f"vpm{j}")
         seg_l, near = _reg(m, seg[j], 1, f"vs{j}"), _reg(m, s_prev, 1, f"vn{j}")
         take_pm = seg_l | (pm_lt_p & (near | pm_lt_x))
@@ -484,7 +531,8 @@ def elaborate(top, platform):
     # against thr capped at the largest key, registered once per frame (the 33-bit compare
     # with the 32-bit thr was the next worst path)
     key_hi = (1 << (_KEY.width - 1)) - 1
-    thr_k = _reg(m, Mux(thr > key_hi, key_hi, thr), unsigned(_KEY.width - 1), "thr_k")
+    thr_k = _reg(m, Mux(thr[_KEY.width - 1:].any(), key_hi, thr), unsigned(_KEY.width - 1),
+                 "thr_k")
     over = [_reg(m, (cfg.bottom_rule != 2) | _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1,
                  f"key_over{j}") for j in range(L)]
     keys = [_reg(m, k, _KEY, f"key_k{j}") for j, k in enumerate(keys)]
@@ -504,8 +552,8 @@ def elaborate(top, platform):
             nd = Signal(node, name=f"max{lev + 1}_{j // 2}")
             if j + 1 < len(level):
                 lo, hi = level[j], level[j + 1]
-                right = _reg(m, hi.ok & (~lo.ok | (hi.key > lo.key)), 1,
-                             f"maxr{lev + 1}_{j // 2}")
+                gt = _sub_sign(m, lo.key, hi.key, f"maxr{lev + 1}_{j // 2}")
+                right = _reg(m, hi.ok & (~lo.ok | gt), 1, f"maxr{lev + 1}_{j // 2}")
                 lo_c = _reg(m, lo, node, f"maxlo{lev + 1}_{j // 2}")
                 hi_c = _reg(m, hi, node, f"maxhi{lev + 1}_{j // 2}")
                 m.d.sync += nd.eq(Mux(right, hi_c.as_value(), lo_c.as_value()))

@@ -13,12 +13,13 @@ component, the result layout, the latencies and the divider both use.
 
 Parabola without signs: with ``D = 2 den`` and ``q = floor((256 (c - a) + den) / D)`` in
 ``-128..128``, ``q + 128 = floor(N' / D)`` with ``N' = 512 (b - a) + den > 0`` (``a < b`` at a
-peak), a 9-bit quotient of two positive numbers: nine restoring steps.
+peak), a 9-bit quotient of two positive numbers: nine non-restoring steps (the quotient of
+restoring division; the remainder, which is not needed, is left uncorrected).
 """
 
 from __future__ import annotations
 
-from amaranth.hdl import Mux, Signal, signed, unsigned
+from amaranth.hdl import Cat, Const, Mux, Signal, signed, unsigned
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -36,13 +37,13 @@ __all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "RESULT_LATENCY", "SURF
 NOISE_WIDTH = NOISE_MAX.bit_length()
 #: ``thr = max(min_thr, (k_thr_q4 * noise) >> 4)`` at its largest.
 THR_WIDTH = max(by_name("min_thr").hi, (by_name("k_thr_q4").hi * NOISE_MAX) >> 4).bit_length()
-#: Restoring steps of the sub-sample divider (``q + 128`` in ``0..256``).
+#: Steps of the sub-sample divider (``q + 128`` in ``0..256``).
 DIVIDE_STEPS = 9
 #: One lane: clocks from accepting a frame's last sample to its result beat being valid, when
-#: the sample does not wait (the decision and bottom stages, the divider's two loading clocks,
-#: its steps and the clock that raises ``o.valid``). ``lanes`` add ``4 ceil(log2 lanes)``
-#: (:func:`hdl._peak_lanes.latencies`).
-RESULT_LATENCY = DIVIDE_STEPS + 15
+#: the sample does not wait (the decision and bottom stages, the divider's three loading
+#: clocks, its steps and the clock that raises ``o.valid``). ``lanes`` add ``4 ceil(log2
+#: lanes)`` (:func:`hdl._peak_lanes.latencies`).
+RESULT_LATENCY = DIVIDE_STEPS + 16
 #: Clocks from accepting ``y[s + 1]`` to the surface message of the peak at ``s`` being valid,
 #: when that sample does not wait for the threshold (any ``lanes``).
 SURFACE_LATENCY = 4
@@ -73,48 +74,66 @@ def record_layout(k_shape) -> data.StructLayout:
 
 
 def divider_layout(k_shape) -> data.StructLayout:
-    """One peak in the sub-sample divider: what the record needs plus remainder, shifted
-    divisor and quotient bits."""
+    """One peak in the sub-sample divider: what the record needs plus ``b - a``, ``b - c``,
+    ``den`` and ``-den``, the (scaled) remainder and the quotient bits."""
     return data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": k_shape,
-                              "rem": unsigned(OUT_WIDTH + 12),
-                              "dsh": unsigned(OUT_WIDTH + 12),
+                              "bma": signed(OUT_WIDTH + 1), "bmc": signed(OUT_WIDTH + 1),
+                              "den": signed(OUT_WIDTH + 2),
+                              "nden": signed(OUT_WIDTH + 2),
+                              "rem": signed(OUT_WIDTH + 13),
                               "q": unsigned(DIVIDE_STEPS)})
 
 
 def load_divider(m, fins, recs, long, start):
     """Load the divider registers ``fins`` (surface, bottom) from the records ``recs``.
 
-    Two clocks: at ``start`` the records' ``b - a`` and ``den = 2 b - a - c`` are registered
-    (with ``found``, gated by ``long``: the frame reached ``W + 2P + 2`` samples, and the other
-    fields); at the next edge ``N' = 512 (b - a) + den`` and ``D = 2 den`` shifted up by
-    ``DIVIDE_STEPS - 1``. Two adds in one clock, straight from the records, were the worst
-    path of the detector. Returns the signal that is high on that second clock (start the
-    divider then).
+    Three clocks, one add or subtract of two registers each: at ``start`` the records'
+    ``b - a`` and ``b - c`` are registered (with ``found``, gated by ``long``: the frame
+    reached ``W + 2P + 2`` samples, and the other fields), at the next edge their sum ``den =
+    2 b - a - c``, at the third ``-den`` while :func:`divide`'s adder makes ``N' = 512 (b - a)
+    + den``. ``2 b - a - c`` straight from the records (three operands, a LUT layer before the
+    carry chain) was a worst path (5.3 ns), and before that two adds in series. Returns the
+    signal that is high on the third clock (start the divider then).
     """
     loading = Signal(name="div_loading")
-    m.d.sync += loading.eq(start)
-    for i, (fin, r) in enumerate(zip(fins, recs, strict=True)):
-        bma = Signal(signed(OUT_WIDTH + 1), name=f"div_bma{i}")
-        den = Signal(signed(OUT_WIDTH + 2), name=f"div_den{i}")
+    loading2 = Signal(name="div_loading2")
+    m.d.sync += [loading.eq(start), loading2.eq(loading)]
+    for fin, r in zip(fins, recs, strict=True):
         with m.If(start):
             m.d.sync += [fin.found.eq(r.found & long), fin.n.eq(r.n), fin.b.eq(r.b),
-                         fin.k.eq(r.k), bma.eq(r.b - r.a), den.eq(2 * r.b - r.a - r.c)]
+                         fin.k.eq(r.k), fin.bma.eq(r.b - r.a), fin.bmc.eq(r.b - r.c)]
         with m.If(loading):
-            m.d.sync += [fin.q.eq(0), fin.rem.eq(512 * bma + den),
-                         fin.dsh.eq((2 * den) << (DIVIDE_STEPS - 1))]
-    return loading
+            m.d.sync += [fin.q.eq(0), fin.den.eq(fin.bma + fin.bmc)]
+        with m.If(loading2):
+            m.d.sync += fin.nden.eq(-fin.den)
+    return loading2
 
 
 def divide(m, fins, start, done, o_valid):
-    """:data:`DIVIDE_STEPS` restoring steps, one per clock from the clock after ``start`` (the
-    clock ``fins`` are loaded); the clock after the last, raise ``done`` and ``o_valid``.
+    """:data:`DIVIDE_STEPS` steps, one per clock from the clock after ``start`` (the clock
+    ``fins`` are loaded); the clock after the last, raise ``done`` and ``o_valid``.
 
     The steps are counted by a one-hot shift register and enabled by a register of their own
     (``div_upd``): a counter compare deciding the enable of every divider register was a worst
     path (routing of its fan-out).
+
+    Non-restoring: step ``i`` adds ``d_i = D << (8 - i)`` when the remainder is negative and
+    subtracts it otherwise, and the quotient bit is the new remainder's sign. That remainder
+    is restoring division's trial difference (a negative ``r - 2 d`` plus ``d`` is ``r - d``),
+    so the quotient is the same; but the choice comes from a register before the carry chain,
+    where restoring division's sign chose the new remainder after it (the chain, then a mux
+    across every remainder bit: a worst path, 5.8 ns). The remainder is kept scaled by
+    ``2^i`` (``rem = 2 rem -/+ (D << 9)``), so the divisor stands still and its low nine bits
+    are zero: the carry chain covers the upper 29 bits only (it was 37). It is loaded through
+    the same adder (at ``start``: ``N' = 512 (b - a + (den >> 9)) + den mod 512``), so no load
+    mux sits after the chain, and the quotient bit is shifted in a clock later from the
+    remainder register's sign (``div_upd_d``; the last one in the clock after the last step,
+    which raises ``done``): the chain ends in the remainder's flip-flops and nowhere else.
     """
     phase = Signal(DIVIDE_STEPS + 1, name="div_phase")  # one-hot: steps left, then the end
     upd = Signal(name="div_upd")
+    upd_d = Signal(name="div_upd_d")  # the clocks after the steps: take a quotient bit
+    m.d.sync += upd_d.eq(upd)
     m.d.sync += phase.eq(phase >> 1)
     with m.If(start):
         m.d.sync += [phase.eq(1 << DIVIDE_STEPS), upd.eq(1)]
@@ -122,18 +141,17 @@ def divide(m, fins, start, done, o_valid):
         m.d.sync += upd.eq(0)  # this clock makes the last step
     with m.If(phase[0]):
         m.d.sync += [done.eq(1), o_valid.eq(1)]
-    with m.If(upd):
-        for i, fin in enumerate(fins):
-            # one subtraction: its sign is the compare (a compare beside it doubled the carry
-            # chains on this path)
-            diff = Signal(signed(len(fin.rem) + 1), name=f"div_diff{i}")
-            m.d.comb += diff.eq(fin.rem - fin.dsh)
-            ge = diff >= 0
-            m.d.sync += [
-                fin.rem.eq(Mux(ge, diff, fin.rem)),
-                fin.q.eq((fin.q << 1) | ge),
-                fin.dsh.eq(fin.dsh >> 1),
-            ]
+    S = DIVIDE_STEPS  # N' = 2^S (b - a) + den; D << (S - 1) is the first d_i
+    for i, fin in enumerate(fins):
+        r = fin.rem
+        hi = Signal(signed(len(r) - S), name=f"div_hi{i}")  # the sum at bit S and up
+        m.d.comb += hi.eq(Mux(start, fin.bma, r[S - 1:].as_signed())
+                          + Mux(start, fin.den >> S,
+                                Mux(r[-1], fin.den << 1, fin.nden << 1)))
+        with m.If(start | upd):
+            m.d.sync += r.eq(Cat(Mux(start, fin.den[:S], Cat(Const(0, 1), r[:S - 1])), hi))
+    with m.If(upd_d):
+        m.d.sync += [fin.q.eq((fin.q << 1) | ~fin.rem[-1]) for fin in fins]
 
 
 def drive_result(m, o, fin_mu, fin_noise, fin_thr, fins):
@@ -188,7 +206,7 @@ class PeakDetect(wiring.Component):
     surface_latency, result_latency : int
         Clocks from accepting the beat holding ``y[s + 1]`` to the surface message, and from
         accepting a frame's last beat to its result beat, when that beat does not wait (one
-        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 24).
+        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 25).
     threshold_bubble : int
         Most clocks a frame's first beat reaching ``W + 2P + 1`` waits for the threshold with
         ``i.ready`` low (one lane: :data:`THRESHOLD_BUBBLE` = 16).
