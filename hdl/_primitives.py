@@ -9,8 +9,10 @@ registered flag; its ``SyncFIFOBuffered`` level logic was a worst path of the ga
 from __future__ import annotations
 
 from amaranth.hdl import Module, Mux, Signal
-from amaranth.lib import memory, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
+
+from ._bram import BlockRAM
 
 __all__ = ["_Store", "_le", "_step"]
 
@@ -35,18 +37,20 @@ class _Store(wiring.Component):
     fits), so there is no ``w_rdy`` and a write is never refused. A write to the memory and
     the keeping of what was written are separate inputs, so that the memory's write enable
     need not wait for the writer's last decision: an entry written but not kept is
-    overwritten by the next write. The oldest entry is read through the memory's synchronous
-    port, whose data register is ``r.payload``. Whether the memory holds anything is a
-    register (``ne``, beside the entry count), not a compare of pointers or of a level, so
-    that the read decision is one LUT from registers.
+    overwritten by the next write. The oldest entry is read through the two stages of a
+    :class:`hdl._bram.BlockRAM` (the block's address register, then its output register,
+    which is ``r.payload``): a block RAM read straight into logic is more than a 5 ns clock on
+    the ECP5. Whether the memory holds anything is a register (``ne``, beside the entry
+    count), not a compare of pointers or of a level, and so is whether the first stage holds
+    an entry, so that each stage's decision is one LUT from registers.
 
     Parameters
     ----------
     width : int
         Bits per entry.
     depth : int, >= 1
-        Entries it can hold, output register included; the memory is ``depth`` rounded up to a
-        power of two (at least 2).
+        Entries it can hold, both read stages included; the memory is ``depth`` rounded up to
+        a power of two (at least 2).
 
     Attributes
     ----------
@@ -54,7 +58,8 @@ class _Store(wiring.Component):
         The entry to write.
     w_en : In(1)
         Write ``w_data`` to the memory at this clock; the writer guarantees that fewer than
-        ``depth`` entries are held (kept) then.
+        ``depth`` entries are held (kept) then, counting those in the two read stages until
+        they are taken from ``r``.
     w_keep : In(1)
         Keep the entry written at this clock (only with ``w_en``).
     r : Out(stream.Signature(width))
@@ -62,7 +67,8 @@ class _Store(wiring.Component):
 
     Notes
     -----
-    Latency: an entry written at clock t is valid on ``r`` at clock t + 2.
+    Latency: an entry written at clock t is valid on ``r`` at clock t + 3; one entry per clock
+    sustained while ``r.ready`` stays high.
     """
 
     def __init__(self, width: int, depth: int):
@@ -73,38 +79,49 @@ class _Store(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         size = 1 << max(1, (self.depth - 1).bit_length())
-        # An entry is never read on the clock it is written (the count says it is there only
-        # at the next one), and the address read is never the one written then (it would take
-        # `size` entries held and one more coming): the read port need not see the write
-        # port, and synthesis need not build logic for a read and a write of one address
-        # (`no_rw_check`).
-        mem = m.submodules.mem = memory.Memory(shape=self.width, depth=size, init=[],
-                                               attrs={"no_rw_check": 1})
-        wp = mem.write_port()
-        rp = mem.read_port()
+        # The slots in use are those of the entries in the memory and of the one in the first
+        # read stage (its word is in the block's latch, which is not specified to survive a
+        # rewrite of its address): at most `depth` <= `size` of them, because the writer counts
+        # an entry as held until it leaves `r`. So a write never lands on the slot of an entry
+        # in the first stage, and never on the slot read at that clock (that would take `size`
+        # slots in use and one more coming): the read port need not see the write port.
+        ram = m.submodules.ram = BlockRAM(self.width, size)
         w_ptr = Signal(range(size))
         r_ptr = Signal(range(size))
-        count = Signal(range(self.depth + 1))  # entries in the memory (output register not)
+        count = Signal(range(self.depth + 1))  # entries in the memory (read stages not)
         ne = Signal()  # count != 0
-        take = ne & (~self.r.valid | self.r.ready)  # oldest entry -> output register
-        # The same decision again, from copies of `ne` and `r.valid` kept inverted (so that
-        # synthesis does not merge them with the originals), for the count: `take` itself
-        # goes to every block of the memory, and the count need not follow it there.
+        v1 = Signal()  # the first read stage holds an entry
+        move = v1 & (~self.r.valid | self.r.ready)  # first stage -> output register
+        take = ne & (~v1 | ~self.r.valid | self.r.ready)  # oldest entry -> first stage
+        # The same decisions again, from copies of the flags kept inverted (so that synthesis
+        # does not merge them with the originals), for the count and the flags: `take` and
+        # `move` go to every block of the memory, and the count need not follow them there.
         empty = Signal(init=1)  # ~ne
+        idle1 = Signal(init=1)  # ~v1
         idle = Signal(init=1)  # ~r.valid
-        take_c = ~empty & (idle | self.r.ready)
+        free_o = idle | self.r.ready  # the output register can take an entry
+        move_c = ~idle1 & free_o
+        take_c = ~empty & (idle1 | free_o)
         m.d.comb += [
-            wp.addr.eq(w_ptr), wp.data.eq(self.w_data), wp.en.eq(self.w_en),
-            rp.addr.eq(r_ptr), rp.en.eq(take), self.r.payload.eq(rp.data),
+            ram.w_addr.eq(w_ptr), ram.w_data.eq(self.w_data), ram.w_en.eq(self.w_en),
+            ram.r_addr.eq(r_ptr), ram.r_en.eq(take), ram.r_oce.eq(move),
+            self.r.payload.eq(ram.r_data),
         ]
         keep = self.w_keep
         with m.If(keep):
             m.d.sync += w_ptr.eq(w_ptr + 1)  # modulo the power-of-two size
         with m.If(take):
-            m.d.sync += [r_ptr.eq(r_ptr + 1), self.r.valid.eq(1)]
+            m.d.sync += [r_ptr.eq(r_ptr + 1), v1.eq(1)]
+        with m.Elif(move):
+            m.d.sync += v1.eq(0)
+        with m.If(move):
+            m.d.sync += self.r.valid.eq(1)
         with m.Elif(self.r.ready):
             m.d.sync += self.r.valid.eq(0)
-        ne_nx = keep | Mux(take_c, count != 1, ~empty)
+        # count >= 2 as the sign of count - 2: a carry chain from the register (a compare
+        # `count != 1` became a tree of LUTs, the gate's worst path at 188.5 MHz)
+        ne_nx = keep | Mux(take_c, _le(2, count), ~empty)
         m.d.sync += [count.eq(_step(count, keep, take_c)), ne.eq(ne_nx), empty.eq(~ne_nx),
-                     idle.eq(~take_c & (idle | self.r.ready))]
+                     idle1.eq(~take_c & (idle1 | move_c)),
+                     idle.eq(idle1 & free_o)]  # = ~move_c & free_o
         return m

@@ -23,7 +23,7 @@ packet is written; a packet admitted at its start never waits and never has to b
 from __future__ import annotations
 
 from amaranth.hdl import Cat, Const, Module, Mux, Signal, signed, unsigned
-from amaranth.lib import data, memory, stream, wiring
+from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.layouts import FRAME_HEADER, PEAK_RECORD, FrameFlag, FrameType, item_bytes
@@ -39,6 +39,7 @@ from model.link import (
 from model.matched_filter import OUT_WIDTH
 from model.registers import by_name
 
+from ._bram import BlockRAM
 from ._primitives import _le, _step, _Store
 from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
 from .peak_detect import PEAK_RESULT
@@ -126,13 +127,13 @@ class FramePacketizer(wiring.Component):
 
     Notes
     -----
-    Latency: the packet's first byte is written to the FIFO on the fifth clock edge after the
-    one that takes the result (size, room compare, admission, byte choice, write) and appears
-    on ``o`` 2 clocks later (the FIFO's read register); then one byte per clock while ``o`` is
-    ready. ``header.ready``, ``i.ready`` and ``result.ready`` are registers.
-    While a packet is written (one byte per clock, never stalled), the next frame's samples
-    wait:
-    :func:`packet_cycles` gives the clocks a frame occupies the block.
+    Latency: the packet's first byte is written to the FIFO on the sixth clock edge after the
+    one that takes the result (size, room compare, admission, byte choice, output byte,
+    write) and appears on ``o`` 3 clocks later (the FIFO's block RAM and its two read
+    registers); then one byte per clock while ``o`` is ready. ``header.ready``, ``i.ready``
+    and ``result.ready`` are registers. While a packet is written (one byte per clock, never
+    stalled), the next frame's samples wait: :func:`packet_cycles` gives the clocks a frame
+    occupies the block.
     """
 
     def __init__(self, capacity: int = FIFO_BYTES, max_samples: int = GATE_LEN_MAX):
@@ -159,9 +160,20 @@ class FramePacketizer(wiring.Component):
         # The writer below admits a packet only if all of it fits, so the FIFO needs no
         # `w_rdy`, and its "not empty" is a register: the gate's store, which has both.
         fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity)
-        buf = m.submodules.buf = memory.Memory(shape=_KEPT, depth=self.max_samples, init=[])
-        wr = buf.write_port()
-        rd = buf.read_port(domain="sync")
+        # The payload buffer is read through the block RAM's two registers, advanced together
+        # (`adv`), two words ahead of the one sent: a read straight out of the block was
+        # 5.8 ns of the 5 ns clock before any logic. Nothing writes it while it is read.
+        # `adv` goes to the clock enables of every block, so it is an OR of three registers,
+        # each set a clock ahead of the clock it stands for (a decode of the state, `left` and
+        # `j == ibytes - 1` there was the packetizer's worst path, 8.8 ns).
+        buf = m.submodules.buf = BlockRAM(_KEPT, self.max_samples)
+        raddr = Signal(range(self.max_samples))  # the next word to read (wraps; see LINK_HEADER)
+        prime = Signal()  # LINK_HEADER, pos < 2: the two reads that fill the stages
+        fh_last = Signal()  # FRAME_HEADER, left == 1: word 0 is loaded
+        j_last = Signal()  # SAMPLES, j == ibytes - 1: the next word is loaded
+        adv = Signal()
+        m.d.comb += adv.eq(prime | fh_last | j_last)
+        m.d.sync += [prime.eq(0), fh_last.eq(0), j_last.eq(0)]  # unless set below
         hcrc = m.submodules.hcrc = HEADER_CRC(data_width=8).create()
         bcrc = m.submodules.bcrc = BODY_CRC(data_width=8).create()
 
@@ -189,22 +201,33 @@ class FramePacketizer(wiring.Component):
         # ---- collect: header first, then the samples into the buffer ----
         beat = self.i.payload
         item = Signal(_KEPT)
-        with m.Switch(ftype):
-            with m.Case(FrameType.RAW):
-                m.d.comb += item.eq(Cat(beat.codes.l, beat.codes.m, beat.codes.h))
-            with m.Case(FrameType.STITCHED):
-                m.d.comb += item.eq(beat.x.as_unsigned())
-            with m.Case(FrameType.FILTERED):
-                m.d.comb += item.eq(beat.y)  # its sign byte is rebuilt when sent
+        # chosen by flags latched with the header: a decode of `frame_type` here, then the
+        # choice, was the packetizer's worst path (7.0 ns)
+        kind_q = {t: Signal(name=f"kind_{t.name.lower()}")
+                  for t in (FrameType.RAW, FrameType.STITCHED, FrameType.FILTERED)}
+        with m.If(kind_q[FrameType.RAW]):
+            m.d.comb += item.eq(Cat(beat.codes.l, beat.codes.m, beat.codes.h))
+        with m.Elif(kind_q[FrameType.STITCHED]):
+            m.d.comb += item.eq(beat.x.as_unsigned())
+        with m.Elif(kind_q[FrameType.FILTERED]):
+            m.d.comb += item.eq(beat.y)  # its sign byte is rebuilt when sent
         take = Signal()
         m.d.comb += [take.eq(self.i.valid & col_rdy),
-                     wr.addr.eq(n), wr.data.eq(item), wr.en.eq(take & ~peaks_q & ~full)]
+                     buf.r_addr.eq(raddr), buf.r_en.eq(adv), buf.r_oce.eq(adv)]
+        # The write registered: the blocks are far from the logic (3 ns of routing into them),
+        # and the item's frame-type choice came before that (8.9 ns). The buffer is read only
+        # from the packet's link header on, many clocks after the last write.
+        m.d.sync += [buf.w_addr.eq(n), buf.w_data.eq(item),
+                     buf.w_en.eq(take & ~peaks_q & ~full)]
+        with m.If(adv):
+            m.d.sync += raddr.eq(raddr + 1)
 
         # ---- the finished frame: flags, length, sizes ----
         found_s = res.surface.kind != 0
         found_b = res.bottom.kind != 0
+        # the record count registered with the result (from its payload), so that the size
+        # path starts at a register, not behind the kind compares and the add (6.9 ns)
         count = Signal(2)
-        m.d.comb += count.eq(found_s + found_b)
         length = Signal(_LEN)
         m.d.comb += length.eq(Mux(is_peaks, count, hdr.length))
         ibytes = Signal(range(_REC + 1))
@@ -251,9 +274,12 @@ class FramePacketizer(wiring.Component):
         overhead = PACKET_HEADER.size + CRC_BYTES
         room = Signal(signed(self.capacity.bit_length() + 2), init=self.capacity - overhead)
         level = Signal(range(self.capacity + 1))
-        put = Signal()  # a byte written into the FIFO at this clock
+        put = Signal()  # a byte chosen for the FIFO at this clock (`put_q`: written at the next)
+        put_q = Signal()
         got = self.o.valid & self.o.ready
-        m.d.sync += [room.eq(_step(room, got, put)), level.eq(_step(level, put, got))]
+        # the room counts a byte from its choice (a clock early: it only errs on the safe side),
+        # the level from its write
+        m.d.sync += [room.eq(_step(room, got, put)), level.eq(_step(level, put_q, got))]
         fits = Signal()
         m.d.sync += fits.eq(_le(body, room))
 
@@ -266,12 +292,21 @@ class FramePacketizer(wiring.Component):
         pkt = Signal(8 * PACKET_HEADER.size)  # sync, type, seq, length (the CRC bytes unused)
         sh = Signal(8 * (_HDR + _REC_SLOTS * _REC))  # frame header then the two records
         # The item being sent, as read: loaded only (its byte chosen by `j`), so that the
-        # block RAM's output goes straight into a register. Its clock-to-output is 5.8 ns of a
-        # 5 ns clock already; a shift mux behind it made 9.3 ns (107 MHz), and a 32-bit word
-        # whose top byte only repeated bit 23 had Yosys rebuild it with a LUT there (8.0 ns).
+        # block RAM's output goes straight into a register (a shift mux behind the block's
+        # 5.8 ns unregistered output made 9.3 ns, 107 MHz; a 32-bit word whose top byte only
+        # repeated bit 23 had Yosys rebuild it with a LUT there, 8.0 ns).
         word = Signal(_KEPT)
         pos = Signal(range(PACKET_HEADER.size + 1))
         left = Signal(_PKT_LEN + 1)  # bytes left in the current section
+        # What `left` is loaded with, and whether the frame has items to send, registered at
+        # every clock (the result and the header are settled from SIZE on, long before they
+        # are read): made from the result at the load, they were the worst path (7.1 ns).
+        left_hdr = Signal.like(left)  # frame header, plus the records of a peaks frame
+        left_items = Signal.like(left)  # samples to send
+        no_items = Signal()
+        m.d.sync += [left_hdr.eq(_HDR + Mux(is_peaks, length * _REC, 0)),
+                     left_items.eq(Mux(is_peaks, 0, length)),
+                     no_items.eq(is_peaks | (length == 0))]
         j = Signal(range(_REC + 1))  # byte within the current sample item
         crc_i = Signal(range(CRC_BYTES))
         body_start = Signal()  # the next body byte is the first: restart the CRC-32
@@ -296,10 +331,12 @@ class FramePacketizer(wiring.Component):
                 m.d.comb += out.eq(hcrc.crc[8:])
             with m.Case(3):
                 m.d.comb += out.eq(bcrc.crc.word_select(q_crc_i, 8))
+        # The FIFO's write registered: its data goes to all 16 blocks, far apart (3.7 ns of
+        # routing), and the CRC byte's choice came before that (7.5 ns, 133 MHz).
+        m.d.sync += [fifo.w_data.eq(Cat(out, q_last)), put_q.eq(put)]
         m.d.comb += [
-            fifo.w_data.eq(Cat(out, q_last)),
-            fifo.w_en.eq(put),
-            fifo.w_keep.eq(put),
+            fifo.w_en.eq(put_q),
+            fifo.w_keep.eq(put_q),
             hcrc.data.eq(q_byte), hcrc.valid.eq(q_hv), hcrc.start.eq(q_hs),
             bcrc.data.eq(q_byte), bcrc.valid.eq(q_bv), bcrc.start.eq(q_bs),
         ]
@@ -309,6 +346,8 @@ class FramePacketizer(wiring.Component):
                 with m.If(self.header.valid):
                     m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0), full.eq(0),
                                  peaks_q.eq(self.header.payload.frame_type == FrameType.PEAKS),
+                                 *(k.eq(self.header.payload.frame_type == t)
+                                   for t, k in kind_q.items()),
                                  hdr_rdy.eq(0), col_rdy.eq(1)]
                     m.next = "COLLECT"
             with m.State("COLLECT"):
@@ -323,7 +362,10 @@ class FramePacketizer(wiring.Component):
                         m.next = "RESULT"
             with m.State("RESULT"):
                 with m.If(self.result.valid):
-                    m.d.sync += [res.eq(self.result.payload), res_rdy.eq(0)]
+                    got_res = self.result.payload
+                    m.d.sync += [res.eq(got_res), res_rdy.eq(0),
+                                 count.eq((got_res.surface.kind != 0)
+                                          + (got_res.bottom.kind != 0))]
                     m.next = "SIZE"
             with m.State("SIZE"):
                 # the size is known from the stored result: `body` registers it at this edge,
@@ -340,7 +382,8 @@ class FramePacketizer(wiring.Component):
                                    Const(PacketType.FRAME, 8), seq, body)),
                         sh.eq(Cat(fin, res.surface, res.bottom)),
                         pos.eq(0),
-                        rd.addr.eq(0),
+                        raddr.eq(0),
+                        prime.eq(1),
                         seq.eq(seq + 1),
                         self.frames_sent.eq(self.frames_sent + 1),
                     ]
@@ -354,32 +397,40 @@ class FramePacketizer(wiring.Component):
                              src.eq(Mux(pos == 6, 1, Mux(pos == 7, 2, 0))),
                              hv.eq((pos >= 2) & (pos < 6)), hs.eq(pos == 2)]
                 m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos + 1)]
+                # two reads (`prime` at pos 0 and 1) fill the buffer's read stages: words 0
+                # and 1 (for a frame of one word or none, the reads beyond are of stale words,
+                # never sent)
+                m.d.sync += prime.eq(pos == 0)
                 with m.If(pos == PACKET_HEADER.size - 1):
                     # frame header, plus the records of a peaks frame
-                    m.d.sync += [left.eq(_HDR + Mux(is_peaks, length * _REC, 0)),
+                    m.d.sync += [left.eq(left_hdr),
                                  body_start.eq(1)]
                     m.next = "FRAME_HEADER"
             with m.State("FRAME_HEADER"):
                 m.d.comb += [w_en.eq(1), byte.eq(sh[:8]),
                              bv.eq(1), bs.eq(body_start)]
-                m.d.sync += [sh.eq(sh >> 8), left.eq(left - 1), body_start.eq(0)]
+                m.d.sync += [sh.eq(sh >> 8), left.eq(left - 1), body_start.eq(0),
+                             fh_last.eq(left == 2)]  # `left` starts at _HDR or more
                 with m.If(left == 1):
-                    # the buffer's word 0 has been on the read port since DECIDE
-                    m.d.sync += [left.eq(Mux(is_peaks, 0, length)), j.eq(0),
-                                 word.eq(rd.data), rd.addr.eq(1), crc_i.eq(0)]
-                    with m.If(is_peaks | (length == 0)):
+                    # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
+                    # high: `fh_last`)
+                    m.d.sync += [left.eq(left_items), j.eq(0),
+                                 word.eq(buf.r_data), crc_i.eq(0)]
+                    with m.If(no_items):
                         m.next = "CRC"
                     with m.Else():
                         m.next = "SAMPLES"
             with m.State("SAMPLES"):
-                # `left` counts items; the next word is read while this one is sent (each item
-                # has at least two bytes, so the read port has settled by the time it is used)
+                # `left` counts items; the next word waits in the buffer's output register, and
+                # the one after it in its first stage, while this one is sent
                 item_out = Cat(word, word[-1].replicate(8))  # a filtered item's sign byte
                 m.d.comb += [w_en.eq(1), byte.eq(item_out.word_select(j[:2], 8)), bv.eq(1)]
                 m.d.sync += j.eq(j + 1)
-                with m.If(j == ibytes - 1):
-                    m.d.sync += [word.eq(rd.data), rd.addr.eq(rd.addr + 1), j.eq(0),
-                                 left.eq(left - 1)]
+                # j_last: j == ibytes - 1 (every sample item has 2 bytes or more, so a word
+                # loaded is never the last of its item at once)
+                m.d.sync += j_last.eq(~j_last & (j == ibytes - 2))
+                with m.If(j_last):
+                    m.d.sync += [word.eq(buf.r_data), j.eq(0), left.eq(left - 1)]
                     with m.If(left == 1):
                         m.next = "CRC"
             with m.State("CRC"):
@@ -395,6 +446,7 @@ class FramePacketizer(wiring.Component):
             self.o.valid.eq(fifo.r.valid),
             fifo.r.ready.eq(self.o.ready),
             self.fifo_level.eq(level),
-            self.busy.eq(~hdr_rdy | put),  # `put`: the packet's last byte is still to go in
+            # `put`, `put_q`: the packet's last byte is still to go in
+            self.busy.eq(~hdr_rdy | put | put_q),
         ]
         return m

@@ -33,7 +33,7 @@ __all__ = ["DROP_BITS", "LATENCY", "Gate"]
 
 #: Clocks from an input sample to the same sample on ``o`` (FIFO empty, ``o.ready`` high); the
 #: header of a frame becomes valid this many clocks after its last sample entered.
-LATENCY = 3
+LATENCY = 4
 #: Width of the saturating dropped-frame counter.
 DROP_BITS = 16
 
@@ -65,7 +65,9 @@ class Gate(wiring.Component):
         Frame FIFO entries (samples). 4096, the largest ``gate_len``, lets any one frame in; a
         frame longer than ``depth`` is always dropped.
     header_depth : int, >= 1
-        Header FIFO entries, i.e. frames that can wait for the consumer at once.
+        Header FIFO entries, i.e. frames that can wait for the consumer at once. A header is
+        counted from its admission until it is taken, 5 clocks at the least, so back-to-back
+        1-sample frames need 5 or more even with a consumer always ready.
     fine_start, coarse_start, shot_start : int
         Reset values of the counters, for tests only: they let a bench reach the 2^24 and 2^16
         limits in a few clocks. A ``fine_start`` of ``f`` is the state ``f * fine_div`` clocks
@@ -95,8 +97,9 @@ class Gate(wiring.Component):
 
     Notes
     -----
-    Latency: :data:`LATENCY` = 3 clocks from an input sample to it on ``o`` when the FIFO is
-    empty and ``o.ready`` high; one sample per clock sustained.
+    Latency: :data:`LATENCY` = 4 clocks from an input sample to it on ``o`` when the FIFO is
+    empty and ``o.ready`` high (the sample register, the memory write, and the two read
+    registers of the block RAM); one sample per clock sustained.
 
     ``gate_len``, ``frame_type`` and ``bank_id`` are latched when a trigger is accepted, so a
     frame's header always describes that frame; ``gate_delay`` likewise; ``fine_div`` is read
@@ -300,8 +303,11 @@ class Gate(wiring.Component):
                 left1.eq(Mux(no_delay, length == 2, len1)),
             ]
         with m.Elif(step & ~wait0):  # a sample skipped
-            m.d.sync += [wait_m1.eq(wait_m1 - 1), wait1.eq(wait_m1 == 1), wait0.eq(wait1),
-                         fresh0.eq(wait1)]
+            # wait_m1 == 1 as "not wait1 and wait_m1 < 2" (wait_m1 >= 0 on a skip): a carry
+            # chain from the register, not a 16-bit compare tree (the gate's worst path,
+            # 5.2 ns, once the frame store's block RAM read was registered)
+            m.d.sync += [wait_m1.eq(wait_m1 - 1), wait1.eq(~wait1 & ~_le(2, wait_m1)),
+                         wait0.eq(wait1), fresh0.eq(wait1)]
         with m.Elif(step):  # a sample kept
             m.d.sync += [left_m1.eq(left_m1 - 1), left1.eq(left_dec2[-1]), fresh.eq(0),
                          fresh0.eq(0), wait0.eq(1)]

