@@ -15,7 +15,10 @@ Template walk. ``k`` changes at most once per beat (``bin_len >= lanes``): ``rem
 switch sample (``s + bin_offset``, then one every ``bin_len``) counted from the next beat's lane
 0, and the beat's lanes from ``rem`` on take the next template. ``rem``, the "switch in this
 beat" flag and the per-lane "at or past the switch" flags are computed a clock ahead, so the
-template of every lane is a mux from registers, as in the one-lane design.
+template of every lane is a mux from registers, as in the one-lane design. The flag is itself
+chosen among bits made a clock earlier still: beside ``rem`` are kept whether the beat after
+next switches if the next beat does (``hit_a``) and if it does not (``hit_b``), each updated by
+one compare of ``rem`` with a bound registered from ``bin_len``, so no compare follows an add.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from amaranth.lib.fifo import SyncFIFO
 from model.matched_filter import COEF_WIDTH, K_MAX
 from model.registers import by_name
 
+from ._primitives import _le
 from .layouts import STITCHED
 from .matched_filter import (
     _J_BITS,
@@ -96,11 +100,21 @@ def elaborate(mf, platform) -> Module:
     # sample passed before the surface came (the frame keeps template 0, as one lane)
     rem = Signal(signed(len(start) + 2))
     hit = Signal()  # the next beat holds the switch sample (lane rem)
+    # the hit of the beat after the next one, for each way rem can go, kept beside rem: hit_a
+    # if the next beat switches (rem + step < P), hit_b if not (P <= rem < 2 P)
+    hit_a, hit_b = Signal(), Signal()
     after = Signal(P)  # after[p]: lane p of the next beat is at or past the switch
     k = Signal(_K_SHAPE)  # template of the last lane of the last accepted beat
     k_ev = Signal(_K_SHAPE)  # the template from the switch on
-    step = Signal(signed(by_name("bin_len").width + 1))  # bin_len - P, registered
-    m.d.sync += step.eq(cfg.bin_len - P)
+    # bounds from bin_len, registered (bin_len is set between frames): rem moves by step after
+    # a switch, by -P otherwise; lim, t1, t2 are where hit_a and hit_b of the moved rem change
+    bl_w = by_name("bin_len").width
+    step = Signal(signed(bl_w + 1))  # bin_len - P
+    lim = Signal(signed(bl_w + 3))  # 2 P - bin_len: rem + step < P
+    t1 = Signal(signed(bl_w + 3))  # 3 P - bin_len: rem + step < 2 P, rem - P < lim
+    t2 = Signal(signed(bl_w + 3))  # 3 P - 2 bin_len: rem + step < lim
+    m.d.sync += [step.eq(cfg.bin_len - P), lim.eq(2 * P - cfg.bin_len),
+                 t1.eq(3 * P - cfg.bin_len), t2.eq(3 * P - 2 * cfg.bin_len)]
 
     # Surface messages: take the current frame's, drop older ones, hold newer ones. Only the
     # first message of a frame is used (the detector sends one).
@@ -110,8 +124,16 @@ def elaborate(mf, platform) -> Module:
     m.d.comb += mf.surface.ready.eq(~newer)
     take_s = mf.surface.valid & (diff == 0) & ~(accept & d.first)
     m.d.sync += fresh.eq(take_s)
+    # start and its offsets by P, 2 P and lim, each one add from registers (the offsets of
+    # bin_offset are registered), so that arming compares each with n in one carry chain
+    s_w = len(start) + 2
+    starts = [start] + [Signal(signed(s_w), name=f"start_{nm}") for nm in ("p", "2p", "lim")]
+    bos = [Signal(signed(s_w), name=f"bo_{nm}") for nm in ("p", "2p", "lim")]
+    m.d.sync += [bos[0].eq(cfg.bin_offset - P), bos[1].eq(cfg.bin_offset - 2 * P),
+                 bos[2].eq(cfg.bin_offset + cfg.bin_len - 2 * P)]
     with m.If(take_s):
         m.d.sync += start.eq(mf.surface.payload.n + cfg.bin_offset)
+        m.d.sync += [x.eq(mf.surface.payload.n + bo) for x, bo in zip(starts[1:], bos, strict=True)]
 
     k_max = mf.templates - 1
     k_sel = [Signal(_K_SHAPE, name=f"k_sel{p}") for p in range(P)]
@@ -126,39 +148,58 @@ def elaborate(mf, platform) -> Module:
         m.d.sync += n1.eq(Mux(d.first, 2 * P, n1 + P))
         with m.If(d.first):
             m.d.sync += tag.eq(tag + 1)
-    # hit_nx (0 <= rem_nx < P) is decided beside each candidate for rem_nx, from registers,
-    # not after the mux of the adds: after a switch the next one is in the next beat when
-    # rem + bin_len - P < P, i.e. rem < lim = 2 P - bin_len (registered); otherwise rem - P is
-    # in 0..P-1 when rem is in P..2P-1
-    lim = Signal(signed(len(step) + 1))
-    m.d.sync += lim.eq(2 * P - cfg.bin_len)
-    # arming likewise: start - n and start - n1, and their "in the next beat" flags, are made
-    # from registers beside each other; accept only picks one (it chose n1 or n before the
-    # subtraction: full -> accept -> start - n -> 0 <= rem < P -> after was 9.6 ns at 8 lanes)
-    arm_n, arm_n1 = Signal.like(rem), Signal.like(rem)
-    m.d.comb += [arm_n.eq(start - n), arm_n1.eq(start - n1)]
-    # 0 <= a < P as two signs (a compare would map to a LUT chain)
-    hit_n, hit_n1 = Signal(), Signal()
-    m.d.comb += [hit_n.eq(~arm_n[-1] & (arm_n - P)[-1]), hit_n1.eq(~arm_n1[-1] & (arm_n1 - P)[-1])]
-    hit_nx = Signal()
-    m.d.comb += hit_nx.eq(hit)
+
+    def lt(a, b):
+        return ~_le(b, a)
+
+    # The next beat's hit, hit_a and hit_b are each one carry chain from registers, or a mux
+    # of registered bits, for every way rem can go; accept and hit only pick among them. (A
+    # compare of rem_nx would follow the add; a compare of rem itself, made when rem is used,
+    # was the longest path: rem -> rem < lim, P <= rem < 2 P -> hit, 8.6 ns at 2 x 64.)
+    # Arming with base b (n, or n1 when a beat is accepted), rem = start - b, both made
+    # (accept picking n or n1 before the subtraction was 9.6 ns at 8 lanes):
+    def arm(b):
+        s0, sp, s2p, slim = (lt(x, b) for x in starts)  # x < b: start - b < 0, P, 2 P, lim
+        return ~s0 & sp, slim, ~sp & s2p  # hit, hit_a, hit_b
+    arm_n, arm_n1 = arm(n), arm(n1)
+    lane_bits = max((P - 1).bit_length(), 1)
+    lo = slice(0, lane_bits)
+    # the lane of the switch, rem_nx's low bits, from narrow adds: after[] waits for no carry
+    # chain longer than the lane number
+    rem_lo_nx = Signal(lane_bits)
+    m.d.comb += rem_lo_nx.eq(rem[lo])
+    hit_nx, hit_a_nx, hit_b_nx = Signal(), Signal(), Signal()
+    m.d.comb += [hit_nx.eq(hit), hit_a_nx.eq(hit_a), hit_b_nx.eq(hit_b)]
     with m.If(accept & d.first):
         m.d.comb += [armed_nx.eq(0), active_nx.eq(0), hit_nx.eq(0)]
     with m.Elif(fresh & ~armed):
-        m.d.comb += [armed_nx.eq(1), rem_nx.eq(Mux(accept, arm_n1, arm_n)),
-                     hit_nx.eq(Mux(accept, hit_n1, hit_n))]
+        m.d.comb += [
+            armed_nx.eq(1),
+            rem_nx.eq(Mux(accept, start - n1, start - n)),
+            rem_lo_nx.eq(start[lo] - Mux(accept, n1[lo], n[lo])),
+            hit_nx.eq(Mux(accept, arm_n1[0], arm_n[0])),
+            hit_a_nx.eq(Mux(accept, arm_n1[1], arm_n[1])),
+            hit_b_nx.eq(Mux(accept, arm_n1[2], arm_n[2])),
+        ]
     with m.Elif(accept & armed):
-        m.d.comb += [rem_nx.eq(Mux(hit, rem + step, rem - P)),
-                     hit_nx.eq(Mux(hit, rem < lim, (rem >= P) & (rem < 2 * P)))]
+        m.d.comb += [
+            rem_nx.eq(Mux(hit, rem + step, rem - P)),
+            rem_lo_nx.eq(rem[lo] + Mux(hit, step[lo], -P)),
+            hit_nx.eq(Mux(hit, hit_a, hit_b)),
+            # rem + step < lim, rem - P < lim
+            hit_a_nx.eq(Mux(hit, lt(rem, t2), lt(rem, t1))),
+            # P <= rem + step < 2 P, P <= rem - P < 2 P
+            hit_b_nx.eq(Mux(hit, ~lt(rem, lim) & lt(rem, t1),
+                            ~lt(rem, 2 * P) & lt(rem, 3 * P))),
+        ]
         with m.If(hit):
             m.d.comb += active_nx.eq(1)
-    lane_bits = max((P - 1).bit_length(), 1)
     m.d.sync += [
         n.eq(n_nx), rem.eq(rem_nx), armed.eq(armed_nx), active.eq(active_nx), k.eq(k_nx),
-        hit.eq(hit_nx),
+        hit.eq(hit_nx), hit_a.eq(hit_a_nx), hit_b.eq(hit_b_nx),
         k_ev.eq(Mux(active_nx, Mux(k_nx >= k_max, k_nx, k_nx + 1), Mux(k_max >= 1, 1, 0))),
     ]
-    m.d.sync += [after[p].eq(hit_nx & (rem_nx[:lane_bits] <= p)) for p in range(P)]
+    m.d.sync += [after[p].eq(hit_nx & (rem_lo_nx <= p)) for p in range(P)]
 
     # ---- stage 1: the window. w[i] takes the history w[i + P] below L - 1 (0 at a frame's
     # first beat) and lane i - (L - 1) of the beat from L - 1 on; the selects are decoded from
