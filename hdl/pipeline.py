@@ -53,6 +53,41 @@ _BESIDE_FILTER = data.StructLayout({"codes": CODES, "x": STITCHED})
 _INSIDE_BITS = 8  # frames inside the filter/detector: a handful at most
 
 
+class _SideFIFO(wiring.Component):
+    """A ``SyncFIFO`` whose ``w_rdy`` and ``r_rdy`` are registers, not compares of its level.
+
+    The handshakes of the stage beside it reach these flags; as compares of ``level`` they put
+    the level's LUTs in front of that stage's own logic (``beside_filter.level`` -> the
+    filter's handshakes -> its output buffer was the pipeline's worst path, 9.16 ns). Each
+    flag is the next level's compare made from the level register (``level != depth - 1``,
+    ``level != 1``), chosen by this clock's write and read: the late handshakes pass one LUT.
+    Same ports, same behaviour clock for clock as ``SyncFIFO(width, depth)`` (no ``level``).
+    """
+
+    def __init__(self, width: int, depth: int):
+        if depth < 2:
+            raise ValueError(f"side FIFO depth must be at least 2, not {depth!r}")
+        self.depth = depth
+        super().__init__({"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
+                          "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)})
+
+    def elaborate(self, platform):
+        m = Module()
+        fifo = m.submodules.fifo = SyncFIFO(width=len(self.w_data), depth=self.depth)
+        do_write = self.w_en & self.w_rdy
+        do_read = self.r_en & self.r_rdy
+        m.d.comb += [fifo.w_data.eq(self.w_data), fifo.w_en.eq(do_write),
+                     self.r_data.eq(fifo.r_data), fifo.r_en.eq(do_read)]
+        # a write and a read together leave the level as it is: both flags then stay high
+        # (the write needed room, the read an entry)
+        m.d.sync += [
+            self.w_rdy.eq(Mux(do_read, 1, Mux(do_write, fifo.level != self.depth - 1,
+                                              self.w_rdy))),
+            self.r_rdy.eq(Mux(do_write, 1, Mux(do_read, fifo.level != 1, self.r_rdy))),
+        ]
+        return m
+
+
 def register_slice(width: int) -> SyncFIFOBuffered:
     """A stream register slice: output data and ``w_rdy`` both from registers, one transfer
     per clock sustained, two clocks of latency.
@@ -153,10 +188,9 @@ class Pipeline(wiring.Component):
         m.submodules.pack = pk = FramePacketizer(self.fifo_bytes, self.max_samples)
         # Side FIFOs: one entry per sample a stage can hold, plus two so that the fork never
         # waits on them in steady flow.
-        ev = m.submodules.beside_stitch = SyncFIFO(width=ADC_IN.size,
-                                                   depth=stitch.LATENCY + 2)
-        cx = m.submodules.beside_filter = SyncFIFO(width=_BESIDE_FILTER.size,
-                                                   depth=matched_filter.LATENCY + 2)
+        ev = m.submodules.beside_stitch = _SideFIFO(ADC_IN.size, stitch.LATENCY + 2)
+        cx = m.submodules.beside_filter = _SideFIFO(_BESIDE_FILTER.size,
+                                                    matched_filter.LATENCY + 2)
 
         wiring.connect(m, wiring.flipped(self.cfg_stitch), st.cfg)
         wiring.connect(m, wiring.flipped(self.cfg_gate), gate.cfg)
@@ -180,16 +214,25 @@ class Pipeline(wiring.Component):
             ev.w_en.eq(self.i.valid & st.i.ready),
             self.i.ready.eq(st.i.ready & ev.w_rdy),
         ]
+        # The join goes to the gate through a register slice: the side FIFO's read is a LUT-RAM
+        # read, and straight into the gate's trigger logic it was the pipeline's worst path
+        # (beside_stitch's read address -> its LUT RAM -> gate.renew -> gate.top1, 9.32 ns,
+        # 107.3 MHz). The gate takes a sample every clock, so the slice only delays them.
         side = ADC_IN(ev.r_data)
-        g = gate.i.payload
+        gi = Signal(gate.i.payload.shape())
+        ss = m.submodules.stitch_slice = register_slice(len(gi.as_value()))
         m.d.comb += [
-            g.codes.eq(side.codes),
-            g.x.eq(st.o.payload),
-            g.trigger.eq(side.trigger),
-            g.line_sync.eq(side.line_sync),
-            gate.i.valid.eq(st.o.valid & ev.r_rdy),
-            st.o.ready.eq(gate.i.ready & ev.r_rdy),
-            ev.r_en.eq(gate.i.ready & st.o.valid),
+            gi.codes.eq(side.codes),
+            gi.x.eq(st.o.payload),
+            gi.trigger.eq(side.trigger),
+            gi.line_sync.eq(side.line_sync),
+            ss.w_data.eq(gi),
+            ss.w_en.eq(st.o.valid & ev.r_rdy),
+            st.o.ready.eq(ss.w_rdy & ev.r_rdy),
+            ev.r_en.eq(ss.w_rdy & st.o.valid),
+            gate.i.payload.eq(ss.r_data),
+            gate.i.valid.eq(ss.r_rdy),
+            ss.r_en.eq(gate.i.ready),
         ]
 
         # ---- gate -> a register slice -> filter/detector (x) + beside it (codes, x);
