@@ -116,8 +116,8 @@ def bench_builds(figures: dict | None = None, shots: int = SHOTS, seed: int = 0,
         Shots per depth (the accuracy study's side-study count by default).
     seed : int
         Base seed of the sweeps (the accuracy study's, so the shots are its own).
-    depths : sequence of float
-        Depths [m].
+    depths : sequence of float, optional
+        Depths [m] (default: the accuracy study's full set, 1-40 m).
     variants : sequence of {"unstretched", "main"}
     scheduler, progress
         As :func:`model.accuracy.run_sweeps`.
@@ -143,7 +143,9 @@ def bench_builds(figures: dict | None = None, shots: int = SHOTS, seed: int = 0,
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown or not variants:
         raise ValueError(f"variants must be among {VARIANTS}, not {tuple(variants)!r}")
-    depths = tuple(float(d) for d in depths)
+    depths = DEPTHS_FULL if depths is None else tuple(float(d) for d in depths)
+    if not depths or any(not (0 < d <= 200) for d in depths):
+        raise ValueError(f"depths must be in 0 < depth <= 200 m, not {depths!r}")
     specs = tuple(build_spec(b) for b in builds)
     base = study_base(depths)
     sweeps = {"main": Sweep("main", tuple(Point(base, d, d) for d in depths), specs, shots,

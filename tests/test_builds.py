@@ -179,6 +179,8 @@ class TestBenchBuilds:
             bench_builds(FIGS, shots=0)
         with pytest.raises(ValueError, match="variants must be among"):
             bench_builds(FIGS, shots=1, variants=("other",))
+        with pytest.raises(ValueError, match=r"depths must be in 0 < depth <= 200 m, not \(\)"):
+            bench_builds(FIGS, shots=1, depths=())
 
     def test_cli_rejects_bad_shots(self, capsys):
         assert main(["bench", "builds", "--shots", "0"]) != 0
