@@ -299,7 +299,9 @@ def builds_chart(builds: dict, acc: dict | None, out_dir: Path) -> list[Path]:
     ax.set_ylabel("RMSE of detected depths, 1-26 m, cm (log)")
     ax.set_title("On-chip builds: speed against accuracy (adaptive filter + detector)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(loc="upper right", fontsize=7)
+    lo, hi = ax.get_xlim()
+    ax.set_xlim(lo, hi * 3)  # room for the labels right of the slowest build
+    ax.legend(loc="center", fontsize=7)
     return _save(fig, out_dir, "accuracy_builds")
 
 
@@ -488,7 +490,8 @@ def _builds_table(builds: dict) -> str:
         for name, v in b["variants"].items():
             s = v["method"]["summary"]
             reach = "-" if s["max_depth_m"] is None else f"{s['max_depth_m']:g}"
-            rows.append(f"| {b['lanes']} lanes x {b['taps_max']} | {b['dsps']} | "
+            lanes = f"{b['lanes']} lane{'s' if b['lanes'] != 1 else ''}"
+            rows.append(f"| {lanes} x {b['taps_max']} | {b['dsps']} | "
                         f"{b['fmax_mhz']:g} | {b['taps']} | >= {b['bank_min_bin_offset']} | "
                         f"{name} | {v['fpga']['us_per_waveform']:.3f} | {_cm(s['rmse_m'], 2)} "
                         f"| {_pct(s['detection_rate'])} | {reach} | {s['n_wrong_confident']} |")
