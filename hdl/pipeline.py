@@ -88,6 +88,22 @@ class _SideFIFO(wiring.Component):
         return m
 
 
+def _join_into_slice(out, side, joined, slice_, consumer) -> list:
+    """Statements joining a stage's output stream ``out`` with the entry of its ``side`` FIFO
+    into the register slice ``slice_`` (as ``joined``, made by the caller from both), and the
+    slice into the ``consumer`` stream: an item moves only when both are there and the slice
+    has room, so the two never drift apart."""
+    return [
+        slice_.w_data.eq(joined),
+        slice_.w_en.eq(out.valid & side.r_rdy),
+        out.ready.eq(slice_.w_rdy & side.r_rdy),
+        side.r_en.eq(slice_.w_rdy & out.valid),
+        consumer.payload.eq(slice_.r_data),
+        consumer.valid.eq(slice_.r_rdy),
+        slice_.r_en.eq(consumer.ready),
+    ]
+
+
 def register_slice(width: int) -> SyncFIFOBuffered:
     """A stream register slice: output data and ``w_rdy`` both from registers, one transfer
     per clock sustained, two clocks of latency.
@@ -226,13 +242,7 @@ class Pipeline(wiring.Component):
             gi.x.eq(st.o.payload),
             gi.trigger.eq(side.trigger),
             gi.line_sync.eq(side.line_sync),
-            ss.w_data.eq(gi),
-            ss.w_en.eq(st.o.valid & ev.r_rdy),
-            st.o.ready.eq(ss.w_rdy & ev.r_rdy),
-            ev.r_en.eq(ss.w_rdy & st.o.valid),
-            gate.i.payload.eq(ss.r_data),
-            gate.i.valid.eq(ss.r_rdy),
-            ss.r_en.eq(gate.i.ready),
+            *_join_into_slice(st.o, ev, gi, ss, gate.i),
         ]
 
         # ---- gate -> a register slice -> filter/detector (x) + beside it (codes, x);
@@ -271,13 +281,7 @@ class Pipeline(wiring.Component):
             p.y.eq(fd.y.payload.y),
             p.first.eq(fd.y.payload.first),
             p.last.eq(fd.y.payload.last),
-            ps.w_data.eq(p),
-            ps.w_en.eq(fd.y.valid & cx.r_rdy),
-            fd.y.ready.eq(ps.w_rdy & cx.r_rdy),
-            cx.r_en.eq(ps.w_rdy & fd.y.valid),
-            pk.i.payload.eq(ps.r_data),
-            pk.i.valid.eq(ps.r_rdy),
-            ps.r_en.eq(pk.i.ready),
+            *_join_into_slice(fd.y, cx, p, ps, pk.i),
         ]
         wiring.connect(m, fd.o, pk.result)
         done = pk.result.valid & pk.result.ready

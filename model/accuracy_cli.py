@@ -116,6 +116,14 @@ def _cmd_bench_regimes(args) -> int:
     return 1 if res["violations"] else 0
 
 
+def _write_whole(path: str, res: dict) -> None:
+    """``res`` as JSON at ``path``, whole or not at all: a temporary file renamed into place."""
+    out = Path(path)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(json.dumps(res, indent=1) + "\n")
+    tmp.replace(out)
+
+
 def _count(text: str, what: str) -> int:
     if not text.isdigit() or int(text) < 1:
         raise ValueError(f"--{what} must be an integer >= 1, not {text!r}")
@@ -127,11 +135,8 @@ def _cmd_bench_speed(args) -> int:
 
     res = bench_speed(_names(args.methods), repeats=_count(args.repeats, "repeats"),
                       shots=_count(args.shots, "shots"), seed=args.seed)
-    if args.out:  # whole or not at all: a temporary file renamed into place
-        out = Path(args.out)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
-        tmp.replace(out)
+    if args.out:
+        _write_whole(args.out, res)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -166,11 +171,8 @@ def _cmd_bench_builds(args) -> int:
     res = bench_builds(shots=_count(args.shots, "shots"), seed=args.seed,
                        depths=_depths(args.depths) or None,
                        scheduler=_scheduler(args.scheduler), progress=not args.no_progress)
-    if args.out:  # whole or not at all: a temporary file renamed into place
-        out = Path(args.out)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
-        tmp.replace(out)
+    if args.out:
+        _write_whole(args.out, res)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
