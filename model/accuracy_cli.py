@@ -124,6 +124,16 @@ def _write_whole(path: str, res: dict) -> None:
     tmp.replace(out)
 
 
+def _saved_or_printed(args, res: dict) -> bool:
+    """Write ``res`` to ``--out`` if given; print it as JSON with ``--json`` (then True: no
+    table to print)."""
+    if args.out:
+        _write_whole(args.out, res)
+    if args.json:
+        print(json.dumps(res, indent=1))
+    return bool(args.json)
+
+
 def _count(text: str, what: str) -> int:
     if not text.isdigit() or int(text) < 1:
         raise ValueError(f"--{what} must be an integer >= 1, not {text!r}")
@@ -135,10 +145,7 @@ def _cmd_bench_speed(args) -> int:
 
     res = bench_speed(_names(args.methods), repeats=_count(args.repeats, "repeats"),
                       shots=_count(args.shots, "shots"), seed=args.seed)
-    if args.out:
-        _write_whole(args.out, res)
-    if args.json:
-        print(json.dumps(res, indent=1))
+    if _saved_or_printed(args, res):
         return 0
     print(f"{res['n_waveforms']} waveforms ({res['shots_per_depth']} per depth, "
           f"{len(res['depths_m'])} depths {res['depth_range_m'][0]:g}-"
@@ -171,10 +178,7 @@ def _cmd_bench_builds(args) -> int:
     res = bench_builds(shots=_count(args.shots, "shots"), seed=args.seed,
                        depths=_depths(args.depths) or None,
                        scheduler=_scheduler(args.scheduler), progress=not args.no_progress)
-    if args.out:
-        _write_whole(args.out, res)
-    if args.json:
-        print(json.dumps(res, indent=1))
+    if _saved_or_printed(args, res):
         return 0
     print(f"{res['method']} with each measured build's bank, {res['shots_per_depth']} shots per "
           f"depth, {len(res['depths_m'])} depths, seed {res['seed']} ({res['elapsed_s']:g} s)")
