@@ -97,7 +97,7 @@ def latencies(lanes: int) -> tuple[int, int, int]:
     result
         From accepting the frame's last beat to its result beat being valid, when the beat
         does not wait: D1 to C is ``4 levels + 11`` clocks, then the divider's three loading
-        clocks, its steps and ``o.valid``.
+        clocks, its steps, the clock taking the last quotient bit and the payload register.
     bubble
         The most clocks a beat waits in ``D1`` for its frame's threshold, counted as extra
         latency: the flag and mask stages, two trees of ``levels`` clocks, the sum, ``mu``,
@@ -105,8 +105,8 @@ def latencies(lanes: int) -> tuple[int, int, int]:
         multiplier clocks, the partial-product sum, ``thr``, the bound's sum and cap and the
         registered tag match (into ``go``), from the beat that closes the noise window.
 
-    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 25, 16)``, 4 lanes ``(4, 33, 20)``,
-    8 lanes ``(4, 37, 22)``.
+    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 26, 16)``, 4 lanes ``(4, 34, 20)``,
+    8 lanes ``(4, 38, 22)``.
     """
     d = _levels(lanes)
     return SURFACE_LATENCY, RESULT_LATENCY + 4 * d, THRESHOLD_BUBBLE + 2 * d
@@ -252,7 +252,7 @@ def elaborate(top, platform):
     # go is a register, decided a clock ahead from what D1, the tag match, fresh and busy will be
     # (the same function of them as it would be in its own clock): its fan-out to every D1
     # enable then starts at a flip-flop. Decided in its own clock it was the worst path.
-    busy, done = Signal(), Signal()
+    busy = Signal()
     nxt = Signal(held, name="d1_next")
     m.d.comb += nxt.eq(Mux(free, Mux(s_valid, skid.as_value(), inb.as_value()), h1.as_value()))
     busy_nx = (go & d1.last) | (busy & ~(top.o.valid & top.o.ready))
@@ -603,14 +603,14 @@ def elaborate(top, platform):
     fins = [Signal(divider_layout(k_shape), name="fin_s"),
             Signal(divider_layout(k_shape), name="fin_b")]
     with m.If(top.o.valid & top.o.ready):
-        m.d.sync += [busy.eq(0), done.eq(0), top.o.valid.eq(0)]
+        m.d.sync += [busy.eq(0), top.o.valid.eq(0)]
     with m.If(go & d1.last):
         # a long frame's last beat needed its threshold, so the statistics are this frame's;
         # the next frame's last beat waits for this result (busy), so they stay until taken
-        m.d.sync += [busy.eq(1), done.eq(0),
+        m.d.sync += [busy.eq(1),
                      fin_mu.eq(Mux(d1_needs, mu, 0)), fin_noise.eq(Mux(d1_needs, noise, 0)),
                      fin_thr.eq(Mux(d1_needs, thr, cfg.min_thr))]
-    divide(m, fins, load_divider(m, fins, (s_fin, b_fin), end_long, end_valid), done,
-           top.o.valid)
-    drive_result(m, top.o.payload, fin_mu, fin_noise, fin_thr, fins)
+    q_done = Signal(name="div_q_done")
+    divide(m, fins, load_divider(m, fins, (s_fin, b_fin), end_long, end_valid, fin_mu), q_done)
+    drive_result(m, top.o.payload, top.o.valid, q_done, fin_mu, fin_noise, fin_thr, fins)
     return m

@@ -41,9 +41,10 @@ THR_WIDTH = max(by_name("min_thr").hi, (by_name("k_thr_q4").hi * NOISE_MAX) >> 4
 DIVIDE_STEPS = 9
 #: One lane: clocks from accepting a frame's last sample to its result beat being valid, when
 #: the sample does not wait (the decision and bottom stages, the divider's three loading
-#: clocks, its steps and the clock that raises ``o.valid``). ``lanes`` add ``4 ceil(log2
-#: lanes)`` (:func:`hdl._peak_lanes.latencies`).
-RESULT_LATENCY = DIVIDE_STEPS + 16
+#: clocks, its steps, the clock that takes the last quotient bit and the clock that registers
+#: the payload and raises ``o.valid``). ``lanes`` add ``4 ceil(log2 lanes)``
+#: (:func:`hdl._peak_lanes.latencies`).
+RESULT_LATENCY = DIVIDE_STEPS + 17
 #: Clocks from accepting ``y[s + 1]`` to the surface message of the peak at ``s`` being valid,
 #: when that sample does not wait for the threshold (any ``lanes``).
 SURFACE_LATENCY = 4
@@ -81,10 +82,14 @@ def divider_layout(k_shape) -> data.StructLayout:
                               "den": signed(OUT_WIDTH + 2),
                               "nden": signed(OUT_WIDTH + 2),
                               "rem": signed(OUT_WIDTH + 13),
-                              "q": unsigned(DIVIDE_STEPS)})
+                              "q": unsigned(DIVIDE_STEPS),
+                              # made while the divider steps, so that the result beat is a
+                              # register: b - mu (saturated at the end), 256 n - 128 (+ q)
+                              "amp": signed(OUT_WIDTH + 1),
+                              "pos0": signed(N_WIDTH + 10)})
 
 
-def load_divider(m, fins, recs, long, start):
+def load_divider(m, fins, recs, long, start, mu):
     """Load the divider registers ``fins`` (surface, bottom) from the records ``recs``.
 
     Three clocks, one add or subtract of two registers each: at ``start`` the records'
@@ -92,8 +97,10 @@ def load_divider(m, fins, recs, long, start):
     reached ``W + 2P + 2`` samples, and the other fields), at the next edge their sum ``den =
     2 b - a - c``, at the third ``-den`` while :func:`divide`'s adder makes ``N' = 512 (b - a)
     + den``. ``2 b - a - c`` straight from the records (three operands, a LUT layer before the
-    carry chain) was a worst path (5.3 ns), and before that two adds in series. Returns the
-    signal that is high on the third clock (start the divider then).
+    carry chain) was a worst path (5.3 ns), and before that two adds in series. At the second
+    clock also ``b - mu`` and ``256 n - 128`` (``mu``: the frame's baseline register, set before
+    ``start``), for :func:`drive_result`. Returns the signal that is high on the third clock
+    (start the divider then).
     """
     loading = Signal(name="div_loading")
     loading2 = Signal(name="div_loading2")
@@ -103,15 +110,17 @@ def load_divider(m, fins, recs, long, start):
             m.d.sync += [fin.found.eq(r.found & long), fin.n.eq(r.n), fin.b.eq(r.b),
                          fin.k.eq(r.k), fin.bma.eq(r.b - r.a), fin.bmc.eq(r.b - r.c)]
         with m.If(loading):
-            m.d.sync += [fin.q.eq(0), fin.den.eq(fin.bma + fin.bmc)]
+            m.d.sync += [fin.q.eq(0), fin.den.eq(fin.bma + fin.bmc), fin.amp.eq(fin.b - mu),
+                         fin.pos0.eq((fin.n << 8) - 128)]
         with m.If(loading2):
             m.d.sync += fin.nden.eq(-fin.den)
     return loading2
 
 
-def divide(m, fins, start, done, o_valid):
+def divide(m, fins, start, q_done):
     """:data:`DIVIDE_STEPS` steps, one per clock from the clock after ``start`` (the clock
-    ``fins`` are loaded); the clock after the last, raise ``done`` and ``o_valid``.
+    ``fins`` are loaded); the clock after the last (which takes the last quotient bit), pulse
+    ``q_done`` (a register).
 
     The steps are counted by a one-hot shift register and enabled by a register of their own
     (``div_upd``): a counter compare deciding the enable of every divider register was a worst
@@ -139,8 +148,7 @@ def divide(m, fins, start, done, o_valid):
         m.d.sync += [phase.eq(1 << DIVIDE_STEPS), upd.eq(1)]
     with m.Elif(phase[1]):
         m.d.sync += upd.eq(0)  # this clock makes the last step
-    with m.If(phase[0]):
-        m.d.sync += [done.eq(1), o_valid.eq(1)]
+    m.d.sync += q_done.eq(phase[0])
     S = DIVIDE_STEPS  # N' = 2^S (b - a) + den; D << (S - 1) is the first d_i
     for i, fin in enumerate(fins):
         r = fin.rem
@@ -154,20 +162,27 @@ def divide(m, fins, start, done, o_valid):
         m.d.sync += [fin.q.eq((fin.q << 1) | ~fin.rem[-1]) for fin in fins]
 
 
-def drive_result(m, o, fin_mu, fin_noise, fin_thr, fins):
-    """The ``PEAK_RESULT`` payload ``o`` from the frame's statistics and divided peaks."""
-    m.d.comb += [o.mu.eq(fin_mu), o.noise.eq(fin_noise), o.thr.eq(fin_thr)]
+def drive_result(m, o, o_valid, q_done, fin_mu, fin_noise, fin_thr, fins):
+    """Register the ``PEAK_RESULT`` payload ``o`` and raise ``o_valid`` at ``q_done``, from the
+    frame's statistics and divided peaks.
+
+    Every field is a register: the amplitude's ``b - mu`` was an add and a saturation behind
+    the detector's output, and with the packetizer's own logic it was the pipeline's worst path
+    (7.9 ns). The saturation here is an overflow test of two bits of a register.
+    """
     lo, hi = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
-    for out, fin, kind in ((o.surface, fins[0], PeakKind.SURFACE),
-                           (o.bottom, fins[1], PeakKind.BOTTOM)):
-        amp = fin.b - fin_mu
-        with m.If(fin.found):
-            m.d.comb += [
-                out.kind.eq(int(kind)),
-                out.template.eq(fin.k),
-                out.position_q8.eq((fin.n << 8) + fin.q - 128),
-                out.amplitude.eq(Mux(amp < lo, lo, Mux(amp > hi, hi, amp))),
-                out.noise.eq(fin_noise),
+    with m.If(q_done):
+        m.d.sync += [o_valid.eq(1), o.mu.eq(fin_mu), o.noise.eq(fin_noise), o.thr.eq(fin_thr)]
+        for out, fin, kind in ((o.surface, fins[0], PeakKind.SURFACE),
+                               (o.bottom, fins[1], PeakKind.BOTTOM)):
+            amp = fin.amp
+            over = amp[-1] != amp[-2]  # b - mu does not fit s24
+            m.d.sync += [
+                out.kind.eq(Mux(fin.found, int(kind), 0)),
+                out.template.eq(Mux(fin.found, fin.k, 0)),
+                out.position_q8.eq(Mux(fin.found, fin.pos0 + fin.q, 0)),
+                out.amplitude.eq(Mux(fin.found, Mux(over, Mux(amp[-1], lo, hi), amp), 0)),
+                out.noise.eq(Mux(fin.found, fin_noise, 0)),
             ]
 
 
@@ -206,7 +221,7 @@ class PeakDetect(wiring.Component):
     surface_latency, result_latency : int
         Clocks from accepting the beat holding ``y[s + 1]`` to the surface message, and from
         accepting a frame's last beat to its result beat, when that beat does not wait (one
-        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 25).
+        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 26).
     threshold_bubble : int
         Most clocks a frame's first beat reaching ``W + 2P + 1`` waits for the threshold with
         ``i.ready`` low (one lane: :data:`THRESHOLD_BUBBLE` = 16).
