@@ -22,6 +22,9 @@ packet is written; a packet admitted at its start never waits and never has to b
 
 from __future__ import annotations
 
+from functools import reduce
+from operator import or_
+
 from amaranth.hdl import Cat, Const, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
@@ -182,7 +185,6 @@ class FramePacketizer(wiring.Component):
         n = Signal(range(self.max_samples + 1))  # samples taken
         over = Signal()  # the frame had more samples than the buffer holds
         ftype = hdr.frame_type
-        is_peaks = ftype == FrameType.PEAKS
 
         # The three input readies are registers, each high exactly in its state (HEADER,
         # COLLECT, RESULT): decoded from the state, they reached into the neighbours'
@@ -195,6 +197,8 @@ class FramePacketizer(wiring.Component):
                      self.result.ready.eq(res_rdy)]
         # Taking a sample writes it when the frame keeps samples and the buffer has room:
         # both flags are registers, so the write enable is one LUT from the slice's `r_rdy`.
+        # `peaks_q` (a peaks frame) is latched with the header, and also chooses the sizes:
+        # decoded from `frame_type` there, it led their paths (6.0 ns).
         peaks_q = Signal()
         full = Signal()  # n == max_samples
 
@@ -229,36 +233,43 @@ class FramePacketizer(wiring.Component):
         # path starts at a register, not behind the kind compares and the add (6.9 ns)
         count = Signal(2)
         length = Signal(_LEN)
-        m.d.comb += length.eq(Mux(is_peaks, count, hdr.length))
-        ibytes = Signal(range(_REC + 1))
+        m.d.comb += length.eq(Mux(peaks_q, count, hdr.length))
+        # bytes per item less two, a register (settled from the header on): decoded from
+        # `frame_type` in the clock of the `j` compare it was the worst path (6.0 ns)
+        ibytes_m2 = Signal(range(_REC + 1))
         with m.Switch(ftype):
             for t in FrameType:
                 with m.Case(t):
-                    m.d.comb += ibytes.eq(item_bytes(t))
+                    m.d.sync += ibytes_m2.eq(item_bytes(t) - 2)
         # Frame bytes = header + length x item size, by shifts and adds (item sizes 3, 2, 4, 16):
         # a multiply here went through a DSP block and was the pipeline's critical path
         # (21.7 ns). A samples frame's size depends on the header only, so it is registered
-        # every clock from the latched header (`body_samples`, settled long before the frame
-        # ends); a peaks frame's is 16 + 16 x (0, 1 or 2) records. `body` picks one of the two
-        # at the SIZE edge, a mux in front of a register (the adds in that clock were the
-        # critical path at 94 MHz).
+        # from the latched header in two clocks (`len_bytes` = length x item size, then
+        # `body_samples`), settled long before the frame ends (the header is latched two
+        # clocks before the earliest SIZE); a peaks frame's is 16 + 16 x (0, 1 or 2) records.
+        # `body` picks one of the two at the SIZE edge, a mux in front of a register (the adds
+        # in that clock were the critical path at 94 MHz; `_HDR + 2 length + length` in one
+        # clock was the packetizer's, 6.7 ns).
+        len_bytes = Signal(_PKT_LEN)
+        # chosen by the one-hot kind flags (registers; a peaks frame has none, and its
+        # `len_bytes` is not used): by a decode of `frame_type` it was the worst path (5.4 ns)
+        scaled = []
+        for t, flag in kind_q.items():
+            b = item_bytes(t)
+            if b & (b - 1) == 0:
+                value = hdr.length << (b.bit_length() - 1)
+            else:
+                assert b == 3, "sample item sizes are 2, 3 and 4 bytes"
+                value = (hdr.length << 1) + hdr.length
+            scaled.append(Mux(flag, value, 0))
+        m.d.sync += len_bytes.eq(reduce(or_, scaled))
         body_samples = Signal(_PKT_LEN)
-        with m.Switch(ftype):
-            for t in FrameType:
-                b = item_bytes(t)
-                with m.Case(t):
-                    if t == FrameType.PEAKS:
-                        m.d.sync += body_samples.eq(0)  # not used: body_peaks
-                    elif b & (b - 1) == 0:
-                        m.d.sync += body_samples.eq(_HDR + (hdr.length << (b.bit_length() - 1)))
-                    else:
-                        assert b == 3, "item sizes are 2, 3, 4 and 16 bytes"
-                        m.d.sync += body_samples.eq(_HDR + (hdr.length << 1) + hdr.length)
+        m.d.sync += body_samples.eq(_HDR + len_bytes)
         body_peaks = Signal(_PKT_LEN)
         m.d.comb += body_peaks.eq(_HDR + (count << 4))
         assert _REC == 16, "a peak record is 16 bytes (count << 4)"
         body = Signal(_PKT_LEN)  # frame bytes: header + payload (registered for the compare)
-        m.d.sync += body.eq(Mux(is_peaks, body_peaks, body_samples))
+        m.d.sync += body.eq(Mux(peaks_q, body_peaks, body_samples))
         fin = Signal(FRAME_HEADER_LAYOUT)  # the header as sent
         m.d.comb += [
             fin.eq(hdr),
@@ -296,6 +307,11 @@ class FramePacketizer(wiring.Component):
         # 5.8 ns unregistered output made 9.3 ns, 107 MHz; a 32-bit word whose top byte only
         # repeated bit 23 had Yosys rebuild it with a LUT there, 8.0 ns).
         word = Signal(_KEPT)
+        # `word` takes the buffer's output at the frame header's last byte (`fh_last`) and at
+        # a sample item's last (`j_last`): its enable two registers, not the state's decode
+        # (that, with `left == 1`, was the worst path: 5.7 ns, 4.4 of routing)
+        with m.If(fh_last | j_last):
+            m.d.sync += word.eq(buf.r_data)
         pos = Signal(range(PACKET_HEADER.size + 1))
         left = Signal(_PKT_LEN + 1)  # bytes left in the current section
         # What `left` is loaded with, and whether the frame has items to send, registered at
@@ -304,9 +320,25 @@ class FramePacketizer(wiring.Component):
         left_hdr = Signal.like(left)  # frame header, plus the records of a peaks frame
         left_items = Signal.like(left)  # samples to send
         no_items = Signal()
-        m.d.sync += [left_hdr.eq(_HDR + Mux(is_peaks, length * _REC, 0)),
-                     left_items.eq(Mux(is_peaks, 0, length)),
-                     no_items.eq(is_peaks | (length == 0))]
+        m.d.sync += [left_hdr.eq(_HDR + Mux(peaks_q, length * _REC, 0)),
+                     left_items.eq(Mux(peaks_q, 0, length)),
+                     no_items.eq(peaks_q | (length == 0))]
+        # `left == 1, 2, 3` as registers (`at[k - 1]`), set with `left`: from the same compares
+        # on the (settled) value it is loaded with, or shifted down as it counts down (the
+        # 17-bit equalities into the state's decisions and the word's enable were the
+        # packetizer's worst path, 6.6 ns).
+        at = [Signal(name=f"left_at{k}") for k in (1, 2, 3)]
+        at_hdr = [Signal(name=f"left_hdr_at{k}") for k in (1, 2, 3)]
+        at_items = [Signal(name=f"left_items_at{k}") for k in (1, 2, 3)]
+        m.d.sync += [f.eq(left_hdr == k) for k, f in enumerate(at_hdr, 1)]
+        m.d.sync += [f.eq(left_items == k) for k, f in enumerate(at_items, 1)]
+
+        def load_left(value, flags):
+            return [left.eq(value), *(a.eq(f) for a, f in zip(at, flags, strict=True))]
+
+        def count_left():
+            return [left.eq(left - 1), at[0].eq(at[1]), at[1].eq(at[2]), at[2].eq(left == 4)]
+
         j = Signal(range(_REC + 1))  # byte within the current sample item
         crc_i = Signal(range(CRC_BYTES))
         body_start = Signal()  # the next body byte is the first: restart the CRC-32
@@ -403,19 +435,17 @@ class FramePacketizer(wiring.Component):
                 m.d.sync += prime.eq(pos == 0)
                 with m.If(pos == PACKET_HEADER.size - 1):
                     # frame header, plus the records of a peaks frame
-                    m.d.sync += [left.eq(left_hdr),
-                                 body_start.eq(1)]
+                    m.d.sync += [*load_left(left_hdr, at_hdr), body_start.eq(1)]
                     m.next = "FRAME_HEADER"
             with m.State("FRAME_HEADER"):
                 m.d.comb += [w_en.eq(1), byte.eq(sh[:8]),
                              bv.eq(1), bs.eq(body_start)]
-                m.d.sync += [sh.eq(sh >> 8), left.eq(left - 1), body_start.eq(0),
-                             fh_last.eq(left == 2)]  # `left` starts at _HDR or more
-                with m.If(left == 1):
+                m.d.sync += [sh.eq(sh >> 8), *count_left(), body_start.eq(0),
+                             fh_last.eq(at[1])]  # `left` starts at _HDR or more
+                with m.If(at[0]):
                     # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
                     # high: `fh_last`)
-                    m.d.sync += [left.eq(left_items), j.eq(0),
-                                 word.eq(buf.r_data), crc_i.eq(0)]
+                    m.d.sync += [*load_left(left_items, at_items), j.eq(0), crc_i.eq(0)]
                     with m.If(no_items):
                         m.next = "CRC"
                     with m.Else():
@@ -428,10 +458,10 @@ class FramePacketizer(wiring.Component):
                 m.d.sync += j.eq(j + 1)
                 # j_last: j == ibytes - 1 (every sample item has 2 bytes or more, so a word
                 # loaded is never the last of its item at once)
-                m.d.sync += j_last.eq(~j_last & (j == ibytes - 2))
+                m.d.sync += j_last.eq(~j_last & (j == ibytes_m2))
                 with m.If(j_last):
-                    m.d.sync += [word.eq(buf.r_data), j.eq(0), left.eq(left - 1)]
-                    with m.If(left == 1):
+                    m.d.sync += [j.eq(0), *count_left()]
+                    with m.If(at[0]):
                         m.next = "CRC"
             with m.State("CRC"):
                 m.d.comb += [w_en.eq(1), src.eq(3),
