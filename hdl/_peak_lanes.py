@@ -6,9 +6,10 @@ only a frame's last beat may be partial; one lane's ``FILTER_OUT`` sample is tak
 one (so one lane and many are one design, tested at 1, 3 and 4 lanes).
 
 Three parts, all free-running pipelines with a valid bit per stage (no clock enable from a
-stall; only the input register ``D1`` holds a beat):
+stall; only the input register ``D1`` holds a beat), and an optional fourth, the lookahead:
 
-* **Window statistics** (from the beat loaded into ``D1``, one clock later): per lane the
+* **Window statistics** (from the beat loaded into ``D1``, one clock later; with a lookahead
+  from the beat entering its FIFO, one clock later, through the register ``E``): per lane the
   baseline and noise window masks, a pipelined adder tree per window (one two-input level per
   clock), the running sums, ``mu = sum >> noise_log2``, then ``|y - mu|`` for the noise lanes
   (a fixed number of clocks after ``mu`` is registered, so even the beat that closes the
@@ -22,6 +23,29 @@ stall; only the input register ``D1`` holds a beat):
   With several lanes the noise window can close in the very beat that holds the first
   candidate, so a frame pays one bubble of at most ``threshold_bubble`` clocks. A frame's last
   beat also waits in ``D1`` until the previous frame's result has been taken (``busy``).
+* **The lookahead** (``lookahead = D > 0``; ``D = 0`` builds exactly the design above). A
+  FIFO of ``D`` beats (:class:`hdl._primitives._Store`: LUT RAM up to 64 entries, its
+  output and its "valid" registers, three clocks from a write to its output) replaces the
+  skid register; the statistics take each beat as it enters it (``E``), so they run up to
+  ``D`` beats ahead of the decision and may finish for frame N + 1 while frame N's tail is
+  still queued. So they are kept per frame: a frame's entry (``mu``, ``noise``, ``thr`` and
+  the bound, each as the frame's first beat needing the threshold saw it at its own stage:
+  delay lines of ``mu``, ``noise`` and ``thr`` keep a later frame's values out) is written
+  into a queue of four (another ``_Store``) the clock after its bound is registered, and D1
+  reads ``cur``, loaded from the queue's head as the previous frame's last beat leaves.
+  Frames shorter than ``W + 2P + 2`` samples need no entry and write none. ``thr``
+  (capped) travels with the beats from D1 to the rule-2 key compare. ``i.ready`` is a
+  register, low only when the FIFO (``occ``: beats taken, not yet in D1) or the queue
+  (``n_res``: frames reserved as their first needing beat is taken) would be full after
+  this clock. A needing beat waits in D1 only until ``cur`` holds its frame
+  (``stats_ok``): ``lookahead_hides - 1`` clocks after it was taken at most, so a FIFO of
+  ``lookahead_hides`` beats hides the bubble (:func:`lookahead_hides`). Cost: the surface
+  message and the result come up to ``D`` clocks later (:func:`latencies`); LUT RAM for
+  the FIFO (``D`` rounded up to a power of two, entries of a beat plus 23 bits: 54 bits at
+  one lane, 309 at ten) and the queue (4 x 104 bits); flip-flops for the two read registers
+  of each, ``E``, ``cur`` and the delay lines (``24 (levels + 11)`` of ``mu``, ``24 x 6`` of
+  ``noise``, ``32 x 2`` of ``thr``, ``25 (2 levels + 6)`` of the capped ``thr``), less the
+  skid register: about 1.1 k more at one lane, 1.9 k at ten (counted, not synthesized).
 * **Decision**, from ``D1`` as the beat leaves it (``go``): (D2a, D2) per lane the local
   maximum ``y[c-1] < y[c] >= y[c+1]`` with the last two samples of the previous beat,
   ``k(c-1) = k(c+1)``, ``c >= W + 2P``, ``y[c] > mu + thr`` (the compares, then their AND);
@@ -57,6 +81,7 @@ from amaranth.lib import data
 
 from model.matched_filter import OUT_WIDTH
 
+from ._primitives import _step, _Store
 from .matched_filter import N_WIDTH, TAG_WIDTH, RegisteredMultiplier
 from .peak_detect import (
     _KEY,
@@ -76,6 +101,10 @@ from .peak_detect import (
 )
 
 _Y_HI = (1 << (OUT_WIDTH - 1)) - 1
+_KEY_HI = (1 << (_KEY.width - 1)) - 1  # the largest key (thr capped there for rule 2)
+#: Entries of the lookahead's per-frame statistics queue: frames that need the threshold
+#: between their first such beat's arrival and their last beat's leaving D1.
+_QUEUE = 4
 _POS = unsigned(N_WIDTH + 1)  # sample positions, with room for base + lanes
 _SEP = unsigned(_POS.width + 1)  # a centre plus a capped min_sep
 _LO_BITS = 17  # noise splits into 17 + 7 bits for two 18 x 18 multipliers
@@ -86,8 +115,10 @@ def _levels(lanes: int) -> int:
     return (lanes - 1).bit_length()
 
 
-def latencies(lanes: int) -> tuple[int, int, int]:
+def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
     """``(surface, result, bubble)`` in clocks for ``lanes`` samples per clock.
+
+    Without a lookahead (``lookahead = 0``):
 
     surface
         From accepting the beat holding ``y[s + 1]`` to the surface message being valid, when
@@ -107,9 +138,44 @@ def latencies(lanes: int) -> tuple[int, int, int]:
 
     ``levels = ceil(log2(lanes))``: one lane gives ``(4, 26, 16)``, 4 lanes ``(4, 34, 20)``,
     8 lanes ``(4, 38, 22)``.
+
+    With a lookahead of ``D`` beats (``H = lookahead_hides(lanes)``):
+
+    surface
+        ``4 + max(D, H - 1)``: the most beats accepted after the one holding ``y[s + 1]`` up
+        to the clock its message is valid (at most ``D`` while it is in the FIFO, then 4; or,
+        when it waits for its statistics, one per clock until they come), unless it is the
+        frame's last beat and waits for the previous result. In clocks, the latency when the
+        FIFO is full ahead of the beat and no beat waits (:class:`hdl.detect.FilterDetect`
+        bounds ``bin_offset`` with it).
+    result
+        ``D`` more than without: the beat's wait in a full FIFO.
+    bubble
+        ``max(0, H - D)``: the clocks a frame's wait for its threshold still stalls the
+        input, once per frame, in back-to-back traffic.
     """
     d = _levels(lanes)
-    return SURFACE_LATENCY, RESULT_LATENCY + 4 * d, THRESHOLD_BUBBLE + 2 * d
+    if not lookahead:
+        return SURFACE_LATENCY, RESULT_LATENCY + 4 * d, THRESHOLD_BUBBLE + 2 * d
+    hides = lookahead_hides(lanes)
+    return (SURFACE_LATENCY + max(lookahead, hides - 1), RESULT_LATENCY + 4 * d + lookahead,
+            max(0, hides - lookahead))
+
+
+def lookahead_hides(lanes: int) -> int:
+    """The smallest ``lookahead`` (beats) with which no frame waits for its threshold at the
+    input: ``THRESHOLD_BUBBLE + 2 levels + 4`` (20 at one lane, 24 at 4 lanes, 28 at 10).
+
+    With the lookahead a frame's first beat needing the threshold is taken at ``a``, and D1
+    can let it go ``H - 1`` clocks later (``H`` the result): E (the statistics' copy of the
+    beat), the statistics as without a lookahead (``bubble - 1`` clocks to ``bound``), the
+    clock its queue entry is written, the queue's three clocks to its output register and
+    ``cur``. In back-to-back traffic the FIFO fills to ``H - 1`` beats during the first such
+    wait and stays there (one beat in, one out per clock), so every later frame's beat meets
+    its statistics on arriving in D1; ``i.ready`` stays high when the FIFO has room for ``H
+    - 1`` beats and one more, ``lookahead >= H``.
+    """
+    return THRESHOLD_BUBBLE + 2 * _levels(lanes) + 4
 
 
 def _reg(m, value, shape, name, reset_less=False):
@@ -135,6 +201,13 @@ def _sub_sign(m, a, b, name):
     return d[-1]
 
 
+def _room(count, cap, up, down):
+    """``count + up - down <= cap - 1`` (one-bit ``up``, ``down``; ``count <= cap``): the
+    counter's compares with constants, then one LUT with the moves."""
+    return ((count <= cap - 2) | ((count == cap - 1) & (~up | down))
+            | ((count == cap) & down & ~up))
+
+
 def _sum_tree(m, values, name):
     """A pipelined adder tree: one two-input level per clock; returns the root register."""
     level, depth = list(values), 0
@@ -154,7 +227,7 @@ def _sum_tree(m, values, name):
 
 def elaborate(top, platform):
     m = Module()
-    L = top.lanes
+    L, LA = top.lanes, top.lookahead
     depth = _levels(L)
     cfg, d = top.cfg, top.i.payload
     if L == 1:  # one lane's sample (FILTER_OUT) as a beat of one
@@ -211,7 +284,7 @@ def elaborate(top, platform):
     # a go computed from the threshold tags and the ports, fanned out to every D1 enable,
     # was the worst path. A beat taken while D1 is free goes straight into D1.
     held = data.StructLayout({"beat": d.shape(), "base": _POS, "needs": 1, "tag": TAG_WIDTH})
-    accept, go, free = Signal(), Signal(), Signal()
+    accept, go, free = Signal(), Signal(), Signal(name="free")  # (names as before)
     tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # frame 0 gets tag 0
     n_next = Signal(_POS)  # samples of the frame accepted so far
     next_needs = Signal(L + 1)  # per count, the next beat of the frame reaches W + 2P + 1
@@ -221,51 +294,99 @@ def elaborate(top, platform):
                  inb.needs.eq(Mux(d.first, Array(first_needs)[d.count], next_needs.bit_select(
                      d.count, 1))),
                  inb.tag.eq(Mux(d.first, tag + 1, tag))]
-    skid, h1 = Signal(held), Signal(held)
-    s_valid, d1_valid = Signal(), Signal()
-    d1, d1_base, d1_needs, d1_tag = h1.beat, h1.base, h1.needs, h1.tag
-    m.d.comb += [top.i.ready.eq(~s_valid), accept.eq(top.i.valid & ~s_valid),
-                 free.eq(~d1_valid | go)]
-    with m.If(accept):
-        # (the compare is made on the register n_next, the port's first only chooses it)
-        m.d.sync += [n_next.eq(base_in + d.count),
-                     next_needs.eq(Cat(Mux(d.first, at <= 0,
-                                           ~_sub_sign(m, n_next, at, f"next_needs{c}"))
-                                       for c, at in enumerate(need_at)))]
-        with m.If(d.first):
-            m.d.sync += tag.eq(tag + 1)
-    loads = Signal()  # D1 takes a new beat (from the skid if it holds one)
-    m.d.comb += loads.eq(free & (s_valid | top.i.valid))
-    with m.If(free):
-        m.d.sync += [h1.eq(Mux(s_valid, skid.as_value(), inb.as_value())),
-                     d1_valid.eq(s_valid | top.i.valid), s_valid.eq(0)]
-    with m.Elif(accept):
-        m.d.sync += [skid.eq(inb), s_valid.eq(1)]
-    fresh = _reg(m, loads, 1, "fresh")  # D1 holds a beat not yet seen by the statistics
+    def track_input():
+        with m.If(accept):
+            # (the compare is made on the register n_next, the port's first only chooses it)
+            m.d.sync += [n_next.eq(base_in + d.count),
+                         next_needs.eq(Cat(Mux(d.first, at <= 0,
+                                               ~_sub_sign(m, n_next, at, f"next_needs{c}"))
+                                           for c, at in enumerate(need_at)))]
+            with m.If(d.first):
+                m.d.sync += tag.eq(tag + 1)
 
-    # thr_tag: the frame whose threshold the registers below hold (one wider than a tag, so
-    # that its reset value matches no frame). "It is D1's frame" is known a clock late, so
-    # the clock a frame's first beat enters D1 it still speaks of the frame before: such a
-    # beat (fresh) does not go on it. Any other beat follows one of its own frame.
-    thr_tag = Signal(TAG_WIDTH + 1, init=(1 << (TAG_WIDTH + 1)) - 1)
-    # busy: a result is being divided or waits to be taken; a frame's last beat waits.
-    # go is a register, decided a clock ahead from what D1, the tag match, fresh and busy will be
-    # (the same function of them as it would be in its own clock): its fan-out to every D1
-    # enable then starts at a flip-flop. Decided in its own clock it was the worst path.
-    busy = Signal()
-    nxt = Signal(held, name="d1_next")
-    m.d.comb += nxt.eq(Mux(free, Mux(s_valid, skid.as_value(), inb.as_value()), h1.as_value()))
-    busy_nx = (go & d1.last) | (busy & ~(top.o.valid & top.o.ready))
-    m.d.sync += go.eq(Mux(free, s_valid | top.i.valid, d1_valid)
-                      & (~nxt.needs | ((thr_tag == d1_tag) & ~(loads & nxt.beat.first)))
-                      & (~nxt.beat.last | ~busy_nx))
+    if not LA:
+        skid, h1 = Signal(held), Signal(held)
+        s_valid, d1_valid = Signal(), Signal()
+        d1, d1_base, d1_needs, d1_tag = h1.beat, h1.base, h1.needs, h1.tag
+        m.d.comb += [top.i.ready.eq(~s_valid), accept.eq(top.i.valid & ~s_valid),
+                     free.eq(~d1_valid | go)]
+        track_input()
+        loads = Signal()  # D1 takes a new beat (from the skid if it holds one)
+        m.d.comb += loads.eq(free & (s_valid | top.i.valid))
+        with m.If(free):
+            m.d.sync += [h1.eq(Mux(s_valid, skid.as_value(), inb.as_value())),
+                         d1_valid.eq(s_valid | top.i.valid), s_valid.eq(0)]
+        with m.Elif(accept):
+            m.d.sync += [skid.eq(inb), s_valid.eq(1)]
+        fresh = _reg(m, loads, 1, "fresh")  # D1 holds a beat not yet seen by the statistics
+
+        # thr_tag: the frame whose threshold the registers below hold (one wider than a tag, so
+        # that its reset value matches no frame). "It is D1's frame" is known a clock late, so
+        # the clock a frame's first beat enters D1 it still speaks of the frame before: such a
+        # beat (fresh) does not go on it. Any other beat follows one of its own frame.
+        thr_tag = Signal(TAG_WIDTH + 1, init=(1 << (TAG_WIDTH + 1)) - 1)
+        # busy: a result is being divided or waits to be taken; a frame's last beat waits.
+        # go is a register, decided a clock ahead from what D1, the tag match, fresh and busy
+        # will be (the same function of them as it would be in its own clock): its fan-out to
+        # every D1 enable then starts at a flip-flop. Decided in its own clock it was the worst
+        # path.
+        busy = Signal()
+        nxt = Signal(held, name="d1_next")
+        m.d.comb += nxt.eq(Mux(free, Mux(s_valid, skid.as_value(), inb.as_value()),
+                               h1.as_value()))
+        busy_nx = (go & d1.last) | (busy & ~(top.o.valid & top.o.ready))
+        m.d.sync += go.eq(Mux(free, s_valid | top.i.valid, d1_valid)
+                          & (~nxt.needs | ((thr_tag == d1_tag) & ~(loads & nxt.beat.first)))
+                          & (~nxt.beat.last | ~busy_nx))
+
+        st_beat, st_base, st_tag, st_valid = d1, d1_base, d1_tag, fresh
+    else:
+        # The lookahead FIFO (hdl._primitives._Store, LUT RAM up to 64 beats) between the port
+        # and D1; E registers each accepted beat for the statistics. occ counts the beats
+        # taken and not yet loaded into D1 (at most LA, so a write never meets a full store),
+        # n_res the frames holding a slot of the statistics queue (reserved as the frame's
+        # first beat that needs the threshold is taken, freed as its last beat leaves D1).
+        # i.ready is a register: "room after this clock" from flags of the counters and the
+        # one-bit moves (an add before a compare would sit after the port).
+        fifo = m.submodules.lookahead = _Store(held.size, LA)
+        h1, d1_valid = Signal(held), Signal()
+        d1, d1_base, d1_needs, d1_tag = h1.beat, h1.base, h1.needs, h1.tag
+        in_rdy, pop, q_pop = Signal(init=1), Signal(), Signal()
+        occ = Signal(range(LA + 1))
+        n_res = Signal(range(_QUEUE + 1))
+        prev_needs = Signal()  # the frame's beat before needed the threshold
+        push_in = inb.needs & (d.first | ~prev_needs)  # the frame's first beat that needs it
+        m.d.comb += [top.i.ready.eq(in_rdy), accept.eq(top.i.valid & in_rdy),
+                     free.eq(~d1_valid | go), fifo.w_data.eq(inb), fifo.w_en.eq(accept),
+                     fifo.w_keep.eq(accept), fifo.r.ready.eq(free),
+                     pop.eq(free & fifo.r.valid), q_pop.eq(go & d1.last & d1_needs)]
+        track_input()
+        with m.If(accept):
+            m.d.sync += prev_needs.eq(inb.needs)
+        with m.If(free):
+            m.d.sync += [h1.eq(fifo.r.payload), d1_valid.eq(fifo.r.valid)]
+        e = Signal(held, name="la_e")
+        e_valid, e_push = _reg(m, accept, 1, "la_e_valid"), _reg(m, push_in, 1, "la_e_push")
+        m.d.sync += e.eq(inb)
+        m.d.sync += [occ.eq(_step(occ, accept, pop)), n_res.eq(_step(n_res, accept & push_in,
+                                                                        q_pop)),
+                     # (any beat taken may reserve a slot: the port's payload stays out of it)
+                     in_rdy.eq(_room(occ, LA, accept, pop) & _room(n_res, _QUEUE, accept, q_pop))]
+        busy = Signal()
+        stats_ok = Signal()  # the statistics for D1's next beat are there (set below)
+        nxt = Signal(held, name="d1_next")
+        m.d.comb += nxt.eq(Mux(free, fifo.r.payload, h1.as_value()))
+        busy_nx = (go & d1.last) | (busy & ~(top.o.valid & top.o.ready))
+        m.d.sync += go.eq(Mux(free, fifo.r.valid, d1_valid) & (~nxt.needs | stats_ok)
+                          & (~nxt.beat.last | ~busy_nx))
+        st_beat, st_base, st_tag, st_valid = e.beat, e.base, e.tag, e_valid
 
     # ---- window statistics ----
     # S0: the window flags per lane, from the beat's base (a lane holds sample base + j; lanes
     # at or past count are empty); S1: the masked samples. Compares and the mask in one clock
     # were a worst path.
     side = data.StructLayout({"valid": 1, "first": 1, "close_mu": 1, "close_dev": 1,
-                              "tag": TAG_WIDTH})
+                              "tag": TAG_WIDTH, **({"push": 1} if LA else {})})
     s0, s1 = Signal(side), Signal(side)
     s0_y = Signal(data.ArrayLayout(_Y, L))
     s0_mu, s0_dev = Signal(L), Signal(L)
@@ -274,22 +395,24 @@ def elaborate(top, platform):
     s1_dev = Signal(L)
     close_mu, close_dev = [], []
     for j in range(L):
-        used = Const(j) < d1.count
+        used = Const(j) < st_beat.count
         # (position compares as subtraction signs, here and below: as compares they left
         # the carry out of the chain to an extra cell and a LUT, a worst path)
-        past_lo = ~_sub_sign(m, d1_base, mu_lo[j], f"s0_lo{j}")
-        past_hi = ~_sub_sign(m, d1_base, mu_hi[j], f"s0_hi{j}")
-        before_end = _sub_sign(m, d1_base, dev_hi[j], f"s0_end{j}")
+        past_lo = ~_sub_sign(m, st_base, mu_lo[j], f"s0_lo{j}")
+        past_hi = ~_sub_sign(m, st_base, mu_hi[j], f"s0_hi{j}")
+        before_end = _sub_sign(m, st_base, dev_hi[j], f"s0_end{j}")
         m.d.sync += [s0_mu[j].eq(used & past_lo & ~past_hi),
                      s0_dev[j].eq(used & past_hi & before_end)]
         # "at the window's last sample" as at or past it and not past the window (equalities
         # of the base were a tree of four LUTs, a worst path)
-        close_mu.append(used & ~_sub_sign(m, d1_base, mu_end[j], f"s0_mu_end{j}") & ~past_hi)
-        close_dev.append(used & ~_sub_sign(m, d1_base, dev_end[j], f"s0_dev_end{j}")
+        close_mu.append(used & ~_sub_sign(m, st_base, mu_end[j], f"s0_mu_end{j}") & ~past_hi)
+        close_dev.append(used & ~_sub_sign(m, st_base, dev_end[j], f"s0_dev_end{j}")
                          & before_end)
-    m.d.sync += [s0_y.eq(d1.y), s0.valid.eq(fresh), s0.first.eq(d1.first),
+    m.d.sync += [s0_y.eq(st_beat.y), s0.valid.eq(st_valid), s0.first.eq(st_beat.first),
                  s0.close_mu.eq(reduce(or_, close_mu)), s0.close_dev.eq(reduce(or_, close_dev)),
-                 s0.tag.eq(d1_tag)]
+                 s0.tag.eq(st_tag)]
+    if LA:
+        m.d.sync += s0.push.eq(e_push)
     m.d.sync += [s1_mu[j].eq(Mux(s0_mu[j], s0_y[j], 0)) for j in range(L)]
     m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), s1.eq(s0)]
     # the baseline tree, its running sum, then mu
@@ -317,6 +440,7 @@ def elaborate(top, platform):
     dev_sum = Signal(unsigned(OUT_WIDTH + 1 + _P_MAX_LOG2))
     with m.If(t.valid):
         m.d.sync += dev_sum.eq(Mux(t.first, 0, dev_sum) + dev_tree)
+    t_dev = t
     dev_closed = _reg(m, t.valid & t.close_dev, 1, "dev_closed")
     dev_tag = _reg(m, t.tag, TAG_WIDTH, "dev_tag")
     # noise = min(dev_sum >> noise_log2, NOISE_MAX): the shift, then a clock later the
@@ -353,13 +477,46 @@ def elaborate(top, platform):
     # each lane makes one 24-bit compare
     # (the sum, then the cap a clock later)
     bound = Signal(_Y)
-    total = _reg(m, mu + thr, signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1), "bound_total")
+    # (with the lookahead, mu as the beat at this stage saw it: a later frame's mu may have
+    # been registered meanwhile)
+    mu_at = _delay(m, mu, depth + 11, "la_mu") if LA else [mu]
+    total = _reg(m, mu_at[depth + 9 if LA else 0] + thr,
+                 signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1), "bound_total")
     total_new = _delay(m, prod_new, 2, "bound_new")[-1]
     total_tag = _delay(m, prod_tag, 2, "bound_tag")[-1]
     with m.If(total_new):
         # (total > _Y_HI: not negative, and a bit at or above the sign of y set)
         over = ~total[-1] & total[OUT_WIDTH - 1:-1].any()
-        m.d.sync += [bound.eq(Mux(over, _Y_HI, total)), thr_tag.eq(total_tag)]
+        m.d.sync += bound.eq(Mux(over, _Y_HI, total))
+        if not LA:
+            m.d.sync += thr_tag.eq(total_tag)
+    if not LA:
+        dec_bound = bound
+    else:
+        # The queue of per-frame statistics: a frame's entry is written when its first beat
+        # that needs the threshold (push) is at this stage, the clock after bound is
+        # registered; by then its noise window has closed (at or before that beat), and every
+        # value is taken as that beat saw it at its own stage (delayed copies), so frames
+        # following each other closely in the pipeline keep their own statistics. D1 takes
+        # them from ``cur``, loaded from the queue's head (a register) when free or as the
+        # frame using it leaves (its last beat's go).
+        push_at = _delay(m, _reg(m, t_dev.valid & t_dev.push, 1, "la_push0"), 8, "la_push")[-1]
+        qrec = data.StructLayout({"mu": _Y, "noise": NOISE_WIDTH, "thr": THR_WIDTH, "bound": _Y})
+        q = m.submodules.la_stats = _Store(qrec.size, _QUEUE)
+        entry = Signal(qrec, name="la_entry")
+        m.d.comb += [entry.mu.eq(mu_at[-1]), entry.noise.eq(_delay(m, noise, 6, "la_noise")[-1]),
+                     entry.thr.eq(_delay(m, thr, 2, "la_thr")[-1]), entry.bound.eq(bound),
+                     q.w_data.eq(entry), q.w_en.eq(push_at), q.w_keep.eq(push_at)]
+        cur, cur_valid = Signal(qrec, name="la_cur"), Signal(name="la_cur_valid")
+        cur_thr_k = Signal(unsigned(_KEY.width - 1), name="la_cur_thr_k")
+        head = Signal(qrec, name="la_head")
+        cur_load = ~cur_valid | q_pop
+        m.d.comb += [head.eq(q.r.payload), q.r.ready.eq(cur_load),
+                     stats_ok.eq(Mux(cur_load, q.r.valid, cur_valid))]
+        with m.If(cur_load):
+            m.d.sync += [cur.eq(head), cur_valid.eq(q.r.valid),
+                         cur_thr_k.eq(Mux(head.thr[_KEY.width - 1:].any(), _KEY_HI, head.thr))]
+        dec_bound = cur.bound
 
     # ---- D2: the local-maximum tests per lane, as the beat leaves D1 ----
     y1, y2 = Signal(_Y), Signal(_Y)  # the last two samples of the previous beat
@@ -385,7 +542,7 @@ def elaborate(top, platform):
         lane = [_sub_sign(m, a, b, f"d2a_ab{j}"), ~_sub_sign(m, b, c, f"d2a_bc{j}"),
                 kv[j] == kv[j + 2],
                 (Const(j) < d1.count) & ~_sub_sign(m, d1_base, cand_at[j], f"d2a_cand{j}"),
-                _sub_sign(m, bound, b, f"d2a_thr{j}")]
+                _sub_sign(m, dec_bound, b, f"d2a_thr{j}")]
         tests.append([_reg(m, t, 1, f"d2a_t{j}_{i}") for i, t in enumerate(lane)])
         m.d.sync += d2a_cpos[j].eq(d1_base + (j - 1))
     m.d.sync += [d2a.e[j].eq(v) for j, v in enumerate(ev)]
@@ -530,9 +687,11 @@ def elaborate(top, platform):
     # path)
     # against thr capped at the largest key, registered once per frame (the 33-bit compare
     # with the 32-bit thr was the next worst path)
-    key_hi = (1 << (_KEY.width - 1)) - 1
-    thr_k = _reg(m, Mux(thr[_KEY.width - 1:].any(), key_hi, thr), unsigned(_KEY.width - 1),
-                 "thr_k")
+    if not LA:
+        thr_k = _reg(m, Mux(thr[_KEY.width - 1:].any(), _KEY_HI, thr), unsigned(_KEY.width - 1),
+                     "thr_k")
+    else:  # the frame's, carried with its beats from D1 (go) to here
+        thr_k = _delay(m, cur_thr_k, 2 * depth + 6, "la_thr_k")[-1]
     over = [_reg(m, (cfg.bottom_rule != 2) | _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1,
                  f"key_over{j}") for j in range(L)]
     keys = [_reg(m, k, _KEY, f"key_k{j}") for j, k in enumerate(keys)]
@@ -604,12 +763,13 @@ def elaborate(top, platform):
             Signal(divider_layout(k_shape), name="fin_b")]
     with m.If(top.o.valid & top.o.ready):
         m.d.sync += [busy.eq(0), top.o.valid.eq(0)]
+    fmu, fnoise, fthr = (cur.mu, cur.noise, cur.thr) if LA else (mu, noise, thr)
     with m.If(go & d1.last):
         # a long frame's last beat needed its threshold, so the statistics are this frame's;
         # the next frame's last beat waits for this result (busy), so they stay until taken
         m.d.sync += [busy.eq(1),
-                     fin_mu.eq(Mux(d1_needs, mu, 0)), fin_noise.eq(Mux(d1_needs, noise, 0)),
-                     fin_thr.eq(Mux(d1_needs, thr, cfg.min_thr))]
+                     fin_mu.eq(Mux(d1_needs, fmu, 0)), fin_noise.eq(Mux(d1_needs, fnoise, 0)),
+                     fin_thr.eq(Mux(d1_needs, fthr, cfg.min_thr))]
     q_done = Signal(name="div_q_done")
     divide(m, fins, load_divider(m, fins, (s_fin, b_fin), end_long, end_valid, fin_mu), q_done)
     drive_result(m, top.o.payload, top.o.valid, q_done, fin_mu, fin_noise, fin_thr, fins)

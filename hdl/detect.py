@@ -12,10 +12,18 @@ detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one per pip
 a stall holds them, it never adds any), so by then the filter has accepted samples up to
 ``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of them before the surface
 was known. They must all still use template 0, so the join is exact for
-``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (17 at one
+``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (22 at one
 lane), below the register's floor of 24 (the slack is there for pipeline stages bought for
 speed). Tested at the floor with surfaces on plain, idle and back-pressured traffic, and with
 more lanes at ``min_bin_offset`` itself (``tests/test_hdl_detect_lanes.py``).
+
+With the detector's lookahead (``lookahead = D`` beats, :class:`~hdl.peak_detect.PeakDetect`)
+the beat holding ``y[s + 1]`` may wait behind ``D`` others in the detector's FIFO, so up to
+``surface_latency = 4 + max(D, lookahead_hides - 1)`` beats are taken before the message is
+valid: ``min_bin_offset`` grows by ``lanes x (surface_latency - 4)`` (``lanes x D`` when the
+lookahead hides the threshold wait), above the register's floor even at one lane (42 with
+``D = 20``); a bank for such a build must respect it. In exchange ``frame_gap_clocks`` is 0.
+Tested at ``min_bin_offset`` with one and three lanes.
 """
 
 from __future__ import annotations
@@ -53,6 +61,11 @@ class FilterDetect(wiring.Component):
         more lanes raise the ``bin_offset`` bound to :attr:`min_bin_offset`.
     taps_max : int
         Taps the filter holds (``L`` of a bank may not exceed it); ``lanes x taps_max`` DSPs.
+    lookahead : int
+        The detector's lookahead in beats (:class:`~hdl.peak_detect.PeakDetect`: 0 or
+        4..1024): from its ``lookahead_hides`` on (20 at one lane, 28 at 9 to 16 lanes)
+        frames of at least the detector's ``result_latency`` beats stream back to back with
+        no gap; it raises :attr:`min_bin_offset` and the result's latency.
 
     Attributes
     ----------
@@ -71,25 +84,33 @@ class FilterDetect(wiring.Component):
 
     min_bin_offset : int
         The join is exact for ``bin_offset >= min_bin_offset`` (:data:`MIN_BIN_OFFSET` at one
-        lane, below the register's floor; ``lanes x (filter latency + surface latency +
-        SURFACE_APPLY) + 1`` in general, ``MatchedFilter.max_unsurfaced``). A bank for a
-        multi-lane build must respect it.
+        lane without a lookahead, below the register's floor; ``lanes x (filter latency +
+        surface latency + SURFACE_APPLY) + 1`` in general, ``MatchedFilter.max_unsurfaced``,
+        with the detector's worst-case ``surface_latency``). A bank for a multi-lane or
+        lookahead build must respect it.
     frame_gap_clocks : int
-        Clocks per frame beyond its ``ceil(N / lanes)`` beats (the detector's threshold wait).
+        Clocks per frame beyond its ``ceil(N / lanes)`` beats (the detector's threshold wait,
+        ``threshold_bubble``: 0 with ``lookahead >= lookahead_hides``, for frames of at least
+        the detector's ``result_latency`` without a lookahead, ``26 + 4 ceil(log2 lanes)``
+        beats, and a result sink that takes each result at once).
 
     Notes
     -----
     Latency: ``y`` as the filter (``LATENCY`` clocks); the result the detector's
-    ``result_latency`` after the frame's last ``y`` (more when it waits). The fork passes a
+    ``result_latency`` after the frame's last ``y`` (more when it waits; with a lookahead the
+    worst case with its FIFO full). The fork passes a
     beat when both ``y`` and the detector take it, so ``y`` backpressure stalls the detector
     and the detector's waits (threshold, frame end) stall ``y``.
     """
 
-    def __init__(self, lanes: int = 1, taps_max: int = L_MAX):
+    def __init__(self, lanes: int = 1, taps_max: int = L_MAX, lookahead: int = 0):
         # the parts are made here so that their latencies give the bound before elaboration
+        # (private parts: an unused join warns for itself, they need not warn as well)
         self._filter = MatchedFilter(lanes=lanes, taps_max=taps_max)
-        self._detect = PeakDetect(lanes=lanes)
-        self.lanes, self.taps_max = lanes, taps_max
+        self._filter._MustUse__silence = True
+        self._detect = PeakDetect(lanes=lanes, lookahead=lookahead)
+        self._detect._MustUse__silence = True
+        self.lanes, self.taps_max, self.lookahead = lanes, taps_max, lookahead
         #: smallest ``bin_offset`` for which the fed-back surface always arrives in time
         self.min_bin_offset = self._filter.max_unsurfaced(self._detect.surface_latency) + 1
         #: clocks a frame costs beyond its beats (the detector's wait for its threshold)

@@ -31,8 +31,8 @@ from model.registers import by_name
 from .layouts import config_signature, struct_layout
 from .matched_filter import N_WIDTH, SURFACE, filter_out_layout
 
-__all__ = ["DIVIDE_STEPS", "NOISE_WIDTH", "PEAK_RESULT", "RESULT_LATENCY", "SURFACE_LATENCY",
-           "THRESHOLD_BUBBLE", "THR_WIDTH", "PeakDetect"]
+__all__ = ["DIVIDE_STEPS", "LOOKAHEAD_MAX", "LOOKAHEAD_MIN", "NOISE_WIDTH", "PEAK_RESULT",
+           "RESULT_LATENCY", "SURFACE_LATENCY", "THRESHOLD_BUBBLE", "THR_WIDTH", "PeakDetect"]
 
 NOISE_WIDTH = NOISE_MAX.bit_length()
 #: ``thr = max(min_thr, (k_thr_q4 * noise) >> 4)`` at its largest.
@@ -52,6 +52,9 @@ SURFACE_LATENCY = 4
 #: neighbour) waits with ``i.ready`` low for the frame's threshold: once per frame, counted
 #: from the sample that closes the noise window. ``lanes`` add ``2 ceil(log2 lanes)``.
 THRESHOLD_BUBBLE = 16
+#: ``lookahead`` (beats) is 0 or in ``LOOKAHEAD_MIN..LOOKAHEAD_MAX``: below 4 beats its FIFO
+#: (three clocks from a write to its output) could not pass a beat per clock.
+LOOKAHEAD_MIN, LOOKAHEAD_MAX = 4, 1024
 _P_MAX_LOG2 = by_name("noise_log2").hi
 
 #: The detector's result for one frame: the window statistics and the two peak records
@@ -196,6 +199,12 @@ class PeakDetect(wiring.Component):
     ----------
     lanes : int
         Samples per clock, at least 1 (the design: :mod:`hdl._peak_lanes`).
+    lookahead : int
+        Beats of the FIFO that hides the wait for each frame's threshold: 0 (none, the
+        smallest design) or ``LOOKAHEAD_MIN..LOOKAHEAD_MAX`` (4..1024). The window statistics
+        then run on the beats as they enter the FIFO, up to ``lookahead`` beats ahead of the
+        decision, and keep their results per frame in a queue of four; ``lookahead >=
+        lookahead_hides`` hides the wait entirely (see Notes).
 
     Attributes
     ----------
@@ -209,22 +218,31 @@ class PeakDetect(wiring.Component):
         ``thr = min_thr`` and no records, as the model.
     surface : Out(stream.Signature(SURFACE))
         The surface sample ``n`` and the frame's tag, valid ``surface_latency`` clocks after
-        the beat holding ``y[n + 1]`` is accepted (more if that beat waits for the threshold),
-        until taken (the filter takes it at once). A later surface message replaces one not
-        yet taken.
+        the beat holding ``y[n + 1]`` is accepted (without a lookahead: more if that beat
+        waits for the threshold; with one: at most ``surface_latency`` beats are accepted
+        meanwhile), until taken (the filter takes it at once). A later surface message
+        replaces one not yet taken.
     cfg : In(config_signature("peak"))
         ``noise_log2``, ``k_thr_q4``, ``min_thr``, ``min_sep``, ``bottom_rule``.
     taps : In(unsigned(7))
         ``L`` of the bank (``W = L - 1``), init ``L_MAX``.
-    lanes : int
-        Samples per clock (read by :mod:`hdl.synth` for ``samples_per_s``).
+    lanes, lookahead : int
+        The parameters (``lanes`` is read by :mod:`hdl.synth` for ``samples_per_s``).
     surface_latency, result_latency : int
         Clocks from accepting the beat holding ``y[s + 1]`` to the surface message, and from
         accepting a frame's last beat to its result beat, when that beat does not wait (one
-        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 26).
+        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 26). With a lookahead of
+        ``D`` beats, the worst cases: the surface ``4 + max(D, lookahead_hides - 1)`` (also
+        the most beats accepted in between, which bounds ``bin_offset`` in
+        :class:`hdl.detect.FilterDetect`), the result ``D`` clocks later than without (a
+        full FIFO ahead of the beat); :func:`hdl._peak_lanes.latencies`.
     threshold_bubble : int
-        Most clocks a frame's first beat reaching ``W + 2P + 1`` waits for the threshold with
-        ``i.ready`` low (one lane: :data:`THRESHOLD_BUBBLE` = 16).
+        Most clocks a frame's wait for its threshold keeps ``i.ready`` low, once per frame
+        (one lane: :data:`THRESHOLD_BUBBLE` = 16; with a lookahead ``max(0, lookahead_hides
+        - lookahead)`` in back-to-back traffic).
+    lookahead_hides : int
+        The smallest ``lookahead`` that hides the wait: ``threshold_bubble`` (of ``lookahead
+        = 0``) + 4 beats, 20 at one lane, 24 at 3 or 4 lanes, 28 at 9 to 16.
 
     Notes
     -----
@@ -233,16 +251,35 @@ class PeakDetect(wiring.Component):
     pipeline of their own, so that no add, shift or multiply of them sits in the decision's
     clock), and a frame's last beat waits while the previous frame's result is still being
     divided or not yet taken. Window sums are exact (``P <= 256`` samples of s24). Register
-    changes inside a frame give a mix of old and new rules: write them between frames.
+    changes inside a frame give a mix of old and new rules: write them between frames (with
+    a lookahead, also after the frames still in its FIFO: up to ``lookahead`` beats).
+
+    No bubble: with ``lookahead >= lookahead_hides``, ``o`` taken as soon as it is valid and
+    every frame at least ``result_latency`` of ``lookahead = 0`` beats long (``26 + 4
+    ceil(log2 lanes)``: the frame end's wait for the previous result, which the lookahead
+    does not hide), frames sent back to back are accepted at one beat per clock from reset
+    on, ``i.ready`` never low: the first frame's wait fills the FIFO to ``lookahead_hides -
+    1`` beats and every later frame's statistics are ready when its beats reach the
+    decision. Shorter frames, backpressure on ``o`` or a smaller lookahead still stall the
+    input when the FIFO or the statistics queue (four frames) is full; any frame lengths
+    and traffic stay bit-exact.
     """
 
-    def __init__(self, lanes: int = 1):
+    def __init__(self, lanes: int = 1, lookahead: int = 0):
         if not isinstance(lanes, int) or isinstance(lanes, bool) or lanes < 1:
             self._MustUse__silence = True  # refused, so never meant to be used (as Gate)
             raise ValueError(f"lanes must be an integer of at least 1, not {lanes!r}")
-        self.lanes = lanes
-        from ._peak_lanes import latencies  # (the design module imports this one)
-        self.surface_latency, self.result_latency, self.threshold_bubble = latencies(lanes)
+        if (not isinstance(lookahead, int) or isinstance(lookahead, bool)
+                or not (lookahead == 0 or LOOKAHEAD_MIN <= lookahead <= LOOKAHEAD_MAX)):
+            self._MustUse__silence = True
+            raise ValueError(f"lookahead must be 0 or an integer in {LOOKAHEAD_MIN}.."
+                             f"{LOOKAHEAD_MAX}, not {lookahead!r}")
+        self.lanes, self.lookahead = lanes, lookahead
+        from ._peak_lanes import latencies, lookahead_hides  # (it imports this module)
+        self.surface_latency, self.result_latency, self.threshold_bubble = latencies(
+            lanes, lookahead)
+        #: the smallest ``lookahead`` that hides the threshold wait (see Notes)
+        self.lookahead_hides = lookahead_hides(lanes)
         super().__init__({
             "i": In(stream.Signature(filter_out_layout(lanes))),
             "o": Out(stream.Signature(PEAK_RESULT)),

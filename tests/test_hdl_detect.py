@@ -4,7 +4,9 @@ field, with the surface fed back inside the hardware.
 Cases: echo-like frames at the smallest ``bin_offset`` (the register's floor) with 16
 templates switching every 3 samples, the seed-000 style defaults with the workload bank, and a
 one-tap fixed filter; each with short frames and seeded random frames, plain, with idle
-insertion and with backpressure on both outputs. One Verilator build.
+insertion and with backpressure on both outputs. A second build with the detector's
+lookahead runs the first case at its (larger) ``min_bin_offset`` and passes the echo frames
+without a wait.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_hdl_matched_filter import S16_HI, S16_LO, coef_source, sample_source
-from test_hdl_peak_detect import check_results
+from test_hdl_peak_detect import check_results, detector
 
 from hdl.detect import MIN_BIN_OFFSET, FilterDetect
 from hdl.matched_filter import FILTER_OUT, LATENCY, SURFACE_APPLY
@@ -28,12 +30,14 @@ from model.stitch import stitch_config
 N_ECHO_FRAMES = 5
 
 
-def case(name):
+def case(name, bin_offset=None, taps=64):
+    """Bank, registers and frames of a case; ``edge16`` at ``bin_offset`` (default the
+    register's floor) with ``taps`` taps per template."""
     rng = np.random.default_rng(["edge16", "defaults", "fixed"].index(name) + 40)
     if name == "edge16":
-        cfg = Config(bin_offset=by_name("bin_offset").lo, bin_len=3, out_shift=16, bottom_rule=2,
-                     noise_log2=3, min_sep=4)
-        bank = workload_bank(16, 64)
+        cfg = Config(bin_offset=bin_offset or by_name("bin_offset").lo, bin_len=3, out_shift=16,
+                     bottom_rule=2, noise_log2=3, min_sep=4)
+        bank = workload_bank(16, taps)
     elif name == "defaults":
         cfg = Config()
         bank = workload_bank(8, 32)
@@ -75,16 +79,51 @@ def test_bound():
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
 @pytest.mark.parametrize("case_name", ["edge16", "defaults", "fixed"])
 def test_verilator(tmp_path, case_name, traffic_name):
-    bank, cfg, frames = case(case_name)
+    run_join(tmp_path, case_name, traffic_name)
+
+
+def test_lookahead_refused():
+    """The join passes ``lookahead`` to the detector, which checks it."""
+    with pytest.raises(ValueError, match=r"^lookahead must be 0 or an integer in 4\.\.1024, "
+                                         r"not 2$"):
+        FilterDetect(lookahead=2)
+
+
+#: The smallest lookahead that hides the detector's threshold wait at one lane (20 beats).
+LOOKAHEAD = detector().lookahead_hides
+LOOKAHEAD_TAPS = 16
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+def test_verilator_lookahead(tmp_path, traffic_name):
+    """The join with the detector's lookahead, template switches from its (larger)
+    ``min_bin_offset`` on; in plain traffic the echo frames pass without a wait."""
+    # 16 taps: a small Verilator build (the 64-tap join is the cases above)
+    join, plain = (FilterDetect(taps_max=LOOKAHEAD_TAPS, lookahead=d) for d in (LOOKAHEAD, 0))
+    join._MustUse__silence = plain._MustUse__silence = True
+    assert join.frame_gap_clocks == 0
+    # (one lane: the surface message may come LOOKAHEAD beats later)
+    assert join.min_bin_offset == plain.min_bin_offset + LOOKAHEAD
+    run_join(tmp_path, "edge16", traffic_name, lookahead=LOOKAHEAD,
+             bin_offset=join.min_bin_offset, taps_max=LOOKAHEAD_TAPS)
+
+
+def run_join(tmp_path, case_name, traffic_name, lookahead=0, bin_offset=None, taps_max=None):
+    """One case through the join (``FilterDetect(lookahead=lookahead)``), checked against the
+    model; in plain traffic the echo frames' waits within ``frame_gap_clocks``."""
+    bank, cfg, frames = case(case_name, bin_offset, taps=taps_max or 64)
     source, sink = TRAFFIC[traffic_name]
-    res = run(Design(FilterDetect), tmp_path,
+    params = {"lookahead": lookahead} if lookahead else {}
+    if taps_max:
+        params["taps_max"] = taps_max
+    res = run(Design(FilterDetect, **params), tmp_path,
               sources={"coef": coef_source(bank), "i": sample_source(frames, source)},
               sinks={"y": Sink(FILTER_OUT, sink),
                      "o": Sink(PEAK_RESULT, sink.with_seed(sink.seed + 100))},
               static={**cfg_ports(cfg, "filter", "cfg_filter"),
                       **cfg_ports(cfg, "peak", "cfg_peak"),
                       "templates": bank.K, "taps": bank.L},
-              label=f"filter_detect-{case_name}-{traffic_name}")
+              label=f"filter_detect_la{lookahead}-{case_name}-{traffic_name}")
     assert not res.timeout, f"timed out after {res.clocks} clocks"
     assert res.violations == {"y": 0, "o": 0}
     y, k, results = expected(bank, cfg, frames)
@@ -104,10 +143,12 @@ def test_verilator(tmp_path, case_name, traffic_name):
     if traffic_name == "plain":
         # one sample per clock through the echo frames but for the detector's one wait per
         # frame for its threshold (the 1- and 2-sample frames after them wait for the
-        # detector's divider, by design)
-        echo = res.sources["i"]["clock"][:N_ECHO_FRAMES * 700].reshape(N_ECHO_FRAMES, 700)
-        waits = (np.diff(echo, axis=1) - 1).sum(axis=1)
-        join = FilterDetect()
+        # detector's divider, by design); with the lookahead none, between frames either
+        clocks = res.sources["i"]["clock"][:N_ECHO_FRAMES * 700]
+        waits = (np.diff(clocks.reshape(N_ECHO_FRAMES, 700), axis=1) - 1).sum(axis=1)
+        join = FilterDetect(**params)
         join._MustUse__silence = True  # for its attribute only
         assert np.all(waits <= join.frame_gap_clocks), f"not one sample per clock: {waits}"
+        if lookahead:
+            assert join.frame_gap_clocks == 0 and np.all(np.diff(clocks) == 1)
 

@@ -4,7 +4,8 @@ The multi-lane filter and detector joined, the surface fed back inside the hardw
 smallest ``bin_offset`` the join promises to be exact for (``FilterDetect.min_bin_offset``): every
 y and k of every lane and every result field. Echo-like frames (the detector finds surfaces and
 the template walk runs), short and random frames; plain, with idle insertion and with
-backpressure on both outputs. One Verilator build: 3 lanes (odd) of 8 taps.
+backpressure on both outputs. Two Verilator builds: 3 lanes (odd) of 8 taps, without and with
+the detector's lookahead (each at its own ``min_bin_offset``).
 """
 
 from __future__ import annotations
@@ -15,9 +16,10 @@ import numpy as np
 import pytest
 from test_hdl_detect import expected
 from test_hdl_matched_filter import S16_HI, S16_LO, coef_source
-from test_hdl_peak_detect import check_results
+from test_hdl_peak_detect import check_results, detector
 
 from hdl.detect import MIN_BIN_OFFSET, FilterDetect
+from hdl.export import COMPONENTS
 from hdl.matched_filter import filter_in_layout, filter_out_layout
 from hdl.peak_detect import PEAK_RESULT
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
@@ -31,16 +33,20 @@ LANES, TAPS_MAX = 3, 8
 N_ECHO_FRAMES = 4
 
 
-def join() -> FilterDetect:
-    return FilterDetect(lanes=LANES, taps_max=TAPS_MAX)
+def join(lookahead=0) -> FilterDetect:
+    return FilterDetect(lanes=LANES, taps_max=TAPS_MAX, lookahead=lookahead)
 
 
-def case():
+#: The detector's smallest lookahead that hides its threshold wait at 3 lanes (24 beats).
+LOOKAHEAD = detector(LANES).lookahead_hides
+
+
+def case(lookahead=0):
     """Frames and registers at the join's bound: the switch sample is the first one the
     fed-back surface can still reach."""
     rng = np.random.default_rng(44)
     bank = workload_bank(4, TAPS_MAX)
-    cfg = Config(bin_offset=join().min_bin_offset, bin_len=LANES + 2, out_shift=14,
+    cfg = Config(bin_offset=join(lookahead).min_bin_offset, bin_len=LANES + 2, out_shift=14,
                  bottom_rule=2, noise_log2=3, min_sep=4)
     frames = [stitch_config(a, cfg) for a in synthetic_codes(N_ECHO_FRAMES, 500, seed=32)]
     W, P = bank.L - 1, 1 << cfg.noise_log2
@@ -70,18 +76,32 @@ def test_bound_grows_with_lanes():
     assert join().min_bin_offset > FilterDetect(lanes=2, taps_max=8).min_bin_offset
 
 
+def test_bound_grows_with_lookahead():
+    """The surface message comes up to ``lookahead`` beats later; the wait is hidden."""
+    plain, la = join(), join(LOOKAHEAD)
+    assert la.min_bin_offset == plain.min_bin_offset + LANES * LOOKAHEAD
+    assert (plain.frame_gap_clocks, la.frame_gap_clocks) == (20, 0)
+    # the registry that hdl.synth measures takes the keyword through
+    big = COMPONENTS["albcap_filter_detect"](lanes=10, taps_max=15, lookahead=32)
+    assert (big.lookahead, big.frame_gap_clocks, big.min_bin_offset) == (32, 0, 491)
+    for fd in (plain, la, big):
+        fd._MustUse__silence = True
+
+
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
-def test_verilator(tmp_path, traffic_name):
-    bank, cfg, frames = case()
+@pytest.mark.parametrize("lookahead", [0, LOOKAHEAD])
+def test_verilator(tmp_path, lookahead, traffic_name):
+    bank, cfg, frames = case(lookahead)
     source, sink = TRAFFIC[traffic_name]
-    res = run(Design(FilterDetect, lanes=LANES, taps_max=TAPS_MAX), tmp_path,
+    params = {"lookahead": lookahead} if lookahead else {}
+    res = run(Design(FilterDetect, lanes=LANES, taps_max=TAPS_MAX, **params), tmp_path,
               sources={"coef": coef_source(bank), "i": sample_source(frames, source)},
               sinks={"y": Sink(filter_out_layout(LANES), sink),
                      "o": Sink(PEAK_RESULT, sink.with_seed(sink.seed + 100))},
               static={**cfg_ports(cfg, "filter", "cfg_filter"),
                       **cfg_ports(cfg, "peak", "cfg_peak"),
                       "templates": bank.K, "taps": bank.L},
-              label=f"filter_detect_lanes-{traffic_name}")
+              label=f"filter_detect_lanes_la{lookahead}-{traffic_name}")
     assert not res.timeout, f"timed out after {res.clocks} clocks"
     assert res.violations == {"y": 0, "o": 0}
     y, k, results = expected(bank, cfg, frames)

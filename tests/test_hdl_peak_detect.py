@@ -6,12 +6,15 @@ surface messages come out. Vectors: echo-like frames through the model's filter,
 (lengths around ``W + 2P + 2``, peaks at the first and last candidate sample, plateaus and
 flat steps, template switches under a peak, s24 rails) and seeded random frames, for each
 bottom rule and a saturated-threshold register set, each plain, with idle insertion and with
-backpressure. One Verilator build.
+backpressure. The lookahead build (``lookahead = lookahead_hides``, 20 beats) runs a selection
+of them, and back-to-back frames that it must take with ``i.ready`` never low (the plain
+build waits in each). Two Verilator builds.
 """
 
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -280,3 +283,136 @@ def test_verilator_slow_result_sink(tmp_path):
     check_results(res.sinks["o"], results)
     check_surfaces(res.sinks["surface"], results)
     assert res.sources["i"]["stalls"] > 0
+
+
+# ---- the lookahead (PeakDetect(lookahead=D)): the FIFO that hides the threshold wait ----
+
+def detector(lanes=1, lookahead=0) -> PeakDetect:
+    """A detector for its attributes only (latencies, ``lookahead_hides``)."""
+    dut = PeakDetect(lanes=lanes, lookahead=lookahead)
+    dut._MustUse__silence = True
+    return dut
+
+
+#: One lane, the smallest lookahead that hides the threshold wait (20 beats).
+LOOKAHEAD = detector().lookahead_hides
+
+
+def check_surface_bound(res, ys, results, dut: PeakDetect):
+    """At most ``surface_latency`` beats are accepted after the beat holding ``y[s + 1]`` up to
+    the clock its surface message is taken (what ``FilterDetect.min_bin_offset`` rests on),
+    unless that beat is its frame's last (it may wait for the previous result; the filter
+    drops a surface of a frame that has ended). Returns the largest count seen."""
+    lanes = dut.lanes
+    beats = np.array([-(-len(y) // lanes) for y in ys])
+    starts = np.concatenate([[0], np.cumsum(beats)[:-1]])
+    accepted = res.sources["i"]["clock"]
+    frames = [f for f, r in enumerate(results) if r.surface.found]
+    most = 0
+    for f, clk in zip(frames, res.sinks["surface"]["clock"], strict=True):
+        b = (int(results[f].surface.n) + 1) // lanes
+        if b == beats[f] - 1:
+            continue
+        after = np.count_nonzero((accepted > accepted[starts[f] + b]) & (accepted <= clk))
+        assert after <= dut.surface_latency, (f, after, dut.surface_latency)
+        most = max(most, after)
+    return most
+
+
+def frame_waits(res, ys, lanes) -> np.ndarray:
+    """Per frame, the clocks its beats were not taken though offered at once (plain source):
+    the gaps before each of its beats (the first frame's first beat excepted)."""
+    beats = np.array([-(-len(y) // lanes) for y in ys])
+    gaps = np.concatenate([[0], np.diff(res.sources["i"]["clock"]) - 1])
+    return np.add.reduceat(gaps, np.concatenate([[0], np.cumsum(beats)[:-1]]))
+
+
+def back_to_back(lanes, n_frames=8, seed=7) -> Frames:
+    """Frames of at least ``result_latency`` (without a lookahead) beats, so that no frame end
+    waits for the previous result: a surface and later peaks in each, lengths in every phase
+    of the last beat. ``rule2`` registers (its bottom rule reads ``thr``)."""
+    L, cfg = CONFIGS["rule2"]
+    rng = np.random.default_rng(seed)
+    n0 = L - 1 + (2 << cfg.noise_log2)  # the first candidate
+    ys, ks = [], []
+    for f in range(n_frames):
+        beats = max(detector(lanes).result_latency, -(-(n0 + 30) // lanes)) + f % 3
+        n = beats * lanes - f % lanes
+        y = rng.integers(-3, 4, n)
+        for at in sorted(rng.choice(np.arange(n0, n - 1), 4, replace=False)):
+            y[at] = int(rng.integers(100, 40_000))
+        add_frame(ys, ks, y, np.minimum(np.arange(n) // 40, 15))
+    return Frames(L, cfg, ys, ks)
+
+
+def check_back_to_back(res, fr: Frames, dut: PeakDetect):
+    """Plain traffic: bit-exact, each frame's input wait within ``threshold_bubble``, the
+    result within ``result_latency`` of the last beat (with a lookahead: none waits)."""
+    assert not res.timeout and res.violations == {"o": 0, "surface": 0}
+    results = fr.results()
+    check_results(res.sinks["o"], results)
+    check_surfaces(res.sinks["surface"], results)
+    if dut.lookahead:
+        check_surface_bound(res, fr.ys, results, dut)
+    waits = frame_waits(res, fr.ys, dut.lanes)
+    assert np.all(waits <= dut.threshold_bubble), (waits, dut.threshold_bubble)
+    last = np.cumsum([-(-len(y) // dut.lanes) for y in fr.ys]) - 1
+    lat = res.sinks["o"]["clock"] - res.sources["i"]["clock"][last]
+    assert np.all(lat <= dut.result_latency), (lat, dut.result_latency)
+    return waits
+
+
+LOOKAHEAD_CASES = [("rule2", "plain"), ("rule2", "idle"), ("rule2", "backpressure"),
+                   ("rule1", "backpressure"), ("rule2_L1_P256", "idle")]
+
+
+@pytest.mark.parametrize(("config_name", "traffic_name"), LOOKAHEAD_CASES)
+def test_verilator_lookahead(tmp_path, config_name, traffic_name):
+    """The lookahead build against the model: echo, edge (1 sample up to ``W + 2P + 3``,
+    shorter than the windows) and random frames; surfaces within ``surface_latency`` beats."""
+    fr = frames_for(config_name)
+    source, sink = TRAFFIC[traffic_name]
+    res = run(Design(PeakDetect, lookahead=LOOKAHEAD), tmp_path, **traffic(fr, source, sink),
+              label=f"peak_detect_la-{config_name}-{traffic_name}")
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"o": 0, "surface": 0}
+    results = fr.results()
+    check_results(res.sinks["o"], results)
+    check_surfaces(res.sinks["surface"], results)
+    check_surface_bound(res, fr.ys, results, detector(lookahead=LOOKAHEAD))
+
+
+def test_verilator_lookahead_hides_the_wait(tmp_path):
+    """Back-to-back frames: with ``lookahead = lookahead_hides`` i.ready never drops after
+    reset; without a lookahead every frame waits for its threshold."""
+    fr = back_to_back(1)
+    dut = detector(lookahead=LOOKAHEAD)
+    assert dut.threshold_bubble == 0
+    res = run(Design(PeakDetect, lookahead=LOOKAHEAD), tmp_path / "la", **traffic(fr),
+              label="peak_detect_la-back_to_back")
+    check_back_to_back(res, fr, dut)
+    assert res.sources["i"]["stalls"] == 0
+    res = run(Design(PeakDetect), tmp_path / "plain", **traffic(fr),
+              label="peak_detect-back_to_back")
+    waits = check_back_to_back(res, fr, detector())
+    assert np.all(waits > 0) and res.sources["i"]["stalls"] == waits.sum()
+
+
+class TestLookaheadArgument:
+    @pytest.mark.parametrize("bad", [-1, 1, 3, 1025, 4.0, True, "8"])
+    def test_refused(self, bad):
+        with pytest.raises(ValueError, match=rf"^lookahead must be 0 or an integer in 4\.\.1024, "
+                                             rf"not {re.escape(repr(bad))}$"):
+            PeakDetect(lookahead=bad)
+
+    def test_latencies(self):
+        """Surface and result latencies grow by the FIFO; the wait left is ``H - D``."""
+        plain = detector()
+        assert (plain.surface_latency, plain.result_latency, plain.threshold_bubble) == (4, 26, 16)
+        assert plain.lookahead_hides == 20 == plain.threshold_bubble + 4
+        for d, want in ((4, (23, 30, 16)), (19, (23, 45, 1)), (20, (24, 46, 0)),
+                        (32, (36, 58, 0))):
+            dut = detector(lookahead=d)
+            assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == want, d
+        assert detector(lanes=10, lookahead=28).threshold_bubble == 0
+        assert detector(lanes=10, lookahead=27).threshold_bubble == 1

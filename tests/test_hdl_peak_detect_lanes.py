@@ -10,13 +10,16 @@ length limits ``W + 2P + 1`` and ``W + 2P + 2``, peaks at ``thr`` and ``thr + 1`
 Every field of every result beat and every surface message is compared, plain, with idle
 insertion and with backpressure, and in plain traffic the stated latencies. One run per lanes
 and traffic holds all five register sets, written between frames (:data:`SEPARATORS`). Two
-Verilator builds: 4 lanes and 3 (an odd count).
+Verilator builds: 4 lanes and 3 (an odd count); a third, 4 lanes with a lookahead one beat
+short of hiding the threshold wait, runs the same stream, hundreds of short frames and
+back-to-back frames (one clock's wait each).
 """
 
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -26,9 +29,13 @@ from test_hdl_peak_detect import (
     Y_LO,
     Frames,
     add_frame,
+    back_to_back,
+    check_back_to_back,
     check_latencies,
     check_results,
+    check_surface_bound,
     check_surfaces,
+    detector,
     frames_for,
 )
 
@@ -37,6 +44,7 @@ from hdl.peak_detect import PEAK_RESULT, PeakDetect
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
 from hdl.tb.streams import PLAIN, TRAFFIC
 from model.peak_detect import peak_detect
+from model.registers import Config
 from model.vectors import lane_words
 
 LANES = (4, 3)
@@ -125,7 +133,8 @@ def frames_lanes(config_name, lanes) -> Frames:
 #: One-sample frames between two register sets, their results not compared: the register
 #: ports change as the last of them is offered. The first waits in D1 until the previous
 #: real frame's result is taken (``busy``), the second until the first's is, so the change
-#: reaches no real frame in flight (the detector reads its registers as a beat passes).
+#: reaches no real frame in flight (the detector reads its registers as a beat passes). With a
+#: lookahead of ``D`` beats, ``D + SEPARATORS``: at most ``D`` of them wait in its FIFO.
 SEPARATORS = 3
 
 
@@ -134,6 +143,7 @@ class Stream:
     """Every register set of ``CONFIGS`` in one stream, each with its frames."""
 
     lanes: int
+    separators: int = SEPARATORS  # per register change
     ys: list = field(default_factory=list)
     ks: list = field(default_factory=list)
     group: list = field(default_factory=list)  # per frame: its register set, None: separator
@@ -144,12 +154,12 @@ class Stream:
         for g, name in enumerate(CONFIGS):
             fr = frames_lanes(name, self.lanes)
             if g:
-                beat += SEPARATORS - 1
+                beat += self.separators - 1
                 ports = {**cfg_ports(fr.cfg, "peak"), "taps": fr.L}
                 self.changes += [(beat, port, v) for port, v in ports.items()]
                 beat += 1
-                self.add([np.zeros(1, np.int32)] * SEPARATORS,
-                         [np.zeros(1, np.int64)] * SEPARATORS, None)
+                self.add([np.zeros(1, np.int32)] * self.separators,
+                         [np.zeros(1, np.int64)] * self.separators, None)
             self.add(fr.ys, fr.ks, fr)
             beat += sum(-(-len(y) // self.lanes) for y in fr.ys)
 
@@ -221,3 +231,73 @@ def test_lanes_must_be_positive():
     dut._MustUse__silence = True
     assert dut.lanes == 8
     assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == (4, 38, 22)
+
+
+#: 4 lanes, one beat short of hiding the threshold wait: back-to-back frames wait one clock
+#: each, and the FIFO runs full and D1 waits for statistics in the other traffic.
+LA_LANES = 4
+LA_SHORT = detector(LA_LANES).lookahead_hides - 1
+
+
+def run_stream(tmp_path, st, lanes, lookahead, traffic_name):
+    """``st`` (``ys``, ``ks``, ``group``, ``changes``) through a lookahead build."""
+    source, sink = TRAFFIC[traffic_name]
+    first = st.group[0]
+    src = lane_source(st.ys, st.ks, lanes, source)
+    src.changes = st.changes
+    return run(Design(PeakDetect, lanes=lanes, lookahead=lookahead), tmp_path,
+               sources={"i": src},
+               sinks={"o": Sink(PEAK_RESULT, sink), "surface": Sink(SURFACE, PLAIN)},
+               static={**cfg_ports(first.cfg, "peak"), "taps": first.L},
+               label=f"peak_detect_l{lanes}_la{lookahead}-{traffic_name}")
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+def test_verilator_lookahead(tmp_path, traffic_name):
+    """Every register set's frames through a lookahead build, bit-exact, surfaces within
+    ``surface_latency`` beats."""
+    st = Stream(LA_LANES, separators=LA_SHORT + SEPARATORS)
+    res = run_stream(tmp_path, st, LA_LANES, LA_SHORT, traffic_name)
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"o": 0, "surface": 0}
+    results, real = st.results(), st.real()
+    got = {name: v[real] for name, v in res.sinks["o"].items()}
+    check_results(got, [r for r, keep in zip(results, real, strict=True) if keep])
+    check_surfaces(res.sinks["surface"], results)
+    check_surface_bound(res, st.ys, results, detector(LA_LANES, LA_SHORT))
+
+
+def test_verilator_lookahead_one_short(tmp_path):
+    """``lookahead_hides - 1`` leaves a wait of one clock per back-to-back frame (so the
+    condition is exact; the one-lane bench shows that ``lookahead_hides`` leaves none)."""
+    fr = back_to_back(LA_LANES)
+    st = SimpleNamespace(ys=fr.ys, ks=fr.ks, group=[fr] * len(fr.ys), changes=[])
+    dut = detector(LA_LANES, LA_SHORT)
+    assert dut.threshold_bubble == 1
+    res = run_stream(tmp_path, st, LA_LANES, LA_SHORT, "plain")
+    waits = check_back_to_back(res, fr, dut)
+    assert np.all(waits[1:] == 1), waits
+
+
+@pytest.mark.parametrize("traffic_name", ["plain", "backpressure"])
+def test_verilator_lookahead_short_frames(tmp_path, traffic_name):
+    """Hundreds of frames of 1 to 23 samples back to back (one tap, ``P = 4``: most need the
+    threshold, a few beats each): several frames' statistics queued at once, the queue full,
+    frames whose window closes in the beat after the previous frame's last."""
+    cfg = Config(noise_log2=2, k_thr_q4=16, min_thr=0, min_sep=1, bottom_rule=2)
+    rng = np.random.default_rng(3)
+    ys, ks = [], []
+    for _ in range(300):
+        n = int(rng.integers(1, 24))
+        y = rng.integers(-50, 50, n) + int(rng.integers(-10 ** 6, 10 ** 6))
+        y[rng.random(n) < 0.3] += int(rng.integers(1000, 10 ** 5))
+        add_frame(ys, ks, y)
+    fr = Frames(1, cfg, ys, ks)
+    st = SimpleNamespace(ys=fr.ys, ks=fr.ks, group=[fr] * len(fr.ys), changes=[])
+    res = run_stream(tmp_path, st, LA_LANES, LA_SHORT, traffic_name)
+    assert not res.timeout and res.violations == {"o": 0, "surface": 0}
+    results = fr.results()
+    check_results(res.sinks["o"], results)
+    check_surfaces(res.sinks["surface"], results)
+    check_surface_bound(res, fr.ys, results, detector(LA_LANES, LA_SHORT))
+    assert sum(bool(r.surface.found) for r in results) > 100
