@@ -31,6 +31,7 @@ from amaranth.lib.wiring import In, Out
 from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
+from ._primitives import _le
 from .layouts import STITCHED, config_signature
 
 __all__ = [
@@ -133,12 +134,14 @@ def frame_tags(n_frames: int) -> list[int]:
     return [f % (1 << TAG_WIDTH) for f in range(n_frames)]
 
 
-def _flow_control(m: Module, c, capacity: int, hold_nx=None):
+def _flow_control(m: Module, c, capacity: int, hold_nx=None, decoded: bool = False):
     """Admission of a free-running pipeline that ends in an output buffer of ``capacity``.
 
     Returns ``(accept, take, accept_dl)``: a beat accepted at ``c.i``, taken at ``c.o``, and a
     copy of ``accept`` for the delay line's enables. ``hold_nx`` (optional), when high, keeps
-    ``c.i.ready`` low at the next clock, besides a full pipeline and a coefficient write.
+    ``c.i.ready`` low at the next clock, besides a full pipeline and a coefficient write. With
+    ``decoded``, "full at the next clock" is chosen by the handshakes among flags decoded from
+    the count register (no carry chain after them); the same function either way.
     """
     # The pipeline runs free (no clock enable: a stall signal fanned out to every register
     # was the longest path) and ends in a small output buffer with a bypass. `inflight`
@@ -161,11 +164,24 @@ def _flow_control(m: Module, c, capacity: int, hold_nx=None):
         take.eq(c.o.valid & c.o.ready),
         c.coef.ready.eq(1),
     ]
-    inflight_nx = Signal.like(inflight)
-    m.d.comb += inflight_nx.eq(inflight + accept - take)
+    if decoded:
+        # inflight + accept - take never exceeds capacity, and no beat is accepted while
+        # inflight = capacity (`full` is high then): so it reaches capacity exactly when
+        # nothing is taken and inflight was capacity, or capacity - 1 with a beat accepted.
+        # The two flags and the count's steps are made from the register alone.
+        at_cap, below_cap = Signal(), Signal()
+        m.d.comb += [at_cap.eq(inflight == capacity), below_cap.eq(inflight == capacity - 1)]
+        inflight_up, inflight_down = Signal.like(inflight), Signal.like(inflight)
+        m.d.comb += [inflight_up.eq(inflight + 1), inflight_down.eq(inflight - 1)]
+        inflight_nx = Mux(accept, Mux(take, inflight, inflight_up),
+                          Mux(take, inflight_down, inflight))
+        stop = ~take & (at_cap | (below_cap & accept))
+    else:
+        inflight_nx = Signal.like(inflight)
+        m.d.comb += inflight_nx.eq(inflight + accept - take)
+        stop = inflight_nx >= capacity
     # a hold goes into the two registers, not beside them: accept, which fans out to the
     # frame state, keeps its three inputs
-    stop = inflight_nx >= capacity
     if hold_nx is not None:
         stop = stop | hold_nx
     m.d.sync += [inflight.eq(inflight_nx), room.eq(~stop), full.eq(stop)]
@@ -197,11 +213,31 @@ def _saturation_bounds(m: Module, sh, acc_width: int):
     return over_at, under_at
 
 
+def _ge_split(m: Module, a, b, name: str):
+    """``a >= b`` (signed) over two clocks: returns the registered result, made at the second
+    clock from three signs of subtractions registered at the first (the low halves, unsigned,
+    and the high halves, signed, against ``b_hi`` and ``b_hi + 1``), so that no carry chain
+    is longer than about half the width."""
+    width = max(len(a), len(b)) + 1
+    lo_w = width // 2
+    a_x, b_x = a.as_signed(), b.as_signed()
+    lo_ge, hi_ge, hi_gt = (Signal(name=f"{name}_{w}") for w in ("lo_ge", "hi_ge", "hi_gt"))
+    a_hi, b_hi = a_x[lo_w:].as_signed(), b_x[lo_w:].as_signed()
+    m.d.sync += [lo_ge.eq(_le(b_x[:lo_w], a_x[:lo_w])), hi_ge.eq(_le(b_hi, a_hi)),
+                 hi_gt.eq(~_le(a_hi, b_hi))]
+    ge = Signal(name=name)
+    # a >= b: a_hi > b_hi, or a_hi = b_hi and a_lo >= b_lo (no borrow from the low halves)
+    m.d.sync += ge.eq(Mux(lo_ge, hi_ge, hi_gt))
+    return ge
+
+
 def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
-                    split: bool = False):
+                    split: bool = False, split_compare: bool = False):
     """``y = sat_24(round_shift(acc, sh))`` two clocks after ``acc`` (shift and compares, then
     round and mux); with ``split``, three (the shift by the multiple of 8 in ``sh`` and the
-    compares, the rest of the shift, then round and mux)."""
+    compares, the rest of the shift, then round and mux). With ``split`` and
+    ``split_compare``, the saturation compares (as wide as ``acc``) also take two clocks, in
+    halves (:func:`_ge_split`), beside the two parts of the shift."""
     t = Signal(signed(len(acc) + 1), name=f"{prefix}t")
     over, under = Signal(name=f"{prefix}over"), Signal(name=f"{prefix}under")
     t_low = t[:OUT_WIDTH + 1] + 1
@@ -212,11 +248,20 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
         t8 = Signal.like(t, name=f"{prefix}t8")
         sh_lo = Signal(3, name=f"{prefix}sh_lo")
         over8, under8 = Signal(name=f"{prefix}over8"), Signal(name=f"{prefix}under8")
-        m.d.sync += [
-            t8.eq((acc << 1) >> Cat(Const(0, 3), sh[3:])), sh_lo.eq(sh[:3]),
-            over8.eq(acc >= over_at), under8.eq(acc < under_at),
-            t.eq(t8 >> sh_lo), over.eq(over8), under.eq(under8),
-        ]
+        if split_compare:
+            # one compare as wide as acc (a 20-cell carry chain) was the worst path at one lane
+            # (5.5 ns); in halves, each chain is about half of it
+            m.d.sync += [t8.eq((acc << 1) >> Cat(Const(0, 3), sh[3:])), sh_lo.eq(sh[:3]),
+                         t.eq(t8 >> sh_lo)]
+            over_c = _ge_split(m, acc, over_at, f"{prefix}over_c")
+            within_c = _ge_split(m, acc, under_at, f"{prefix}within_c")  # acc >= under_at
+            m.d.comb += [over.eq(over_c), under.eq(~within_c)]
+        else:
+            m.d.sync += [
+                t8.eq((acc << 1) >> Cat(Const(0, 3), sh[3:])), sh_lo.eq(sh[:3]),
+                over8.eq(acc >= over_at), under8.eq(acc < under_at),
+                t.eq(t8 >> sh_lo), over.eq(over8), under.eq(under8),
+            ]
     else:
         m.d.sync += [t.eq((acc << 1) >> sh), over.eq(acc >= over_at),
                      under.eq(acc < under_at)]
@@ -224,31 +269,49 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
 
 
 def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take):
-    """The output buffer of ``capacity`` beats behind the pipeline's last stage ``pipe``:
-    registers, the head at entry 0; an empty buffer passes ``pipe`` straight through to ``o``."""
-    buf = [Signal(pipe.shape(), name=f"buf{i}") for i in range(capacity)]
+    """The output buffer of ``capacity`` beats behind the pipeline's last stage ``pipe``: a
+    FIFO in LUT RAM (``capacity`` rounded up to a power of two), bypassed when empty.
+
+    The caller guarantees that fewer than ``capacity`` beats are held whenever ``pipe_valid``
+    is high (the pipeline's beat counts against the same admission bound).
+    """
+    # The buffer was 16 register entries that moved down one at every pop, each entry's
+    # select made from the `o` handshake: the pipeline's `valid` -> push/pop -> the selects of
+    # 16 x 30 bits was the worst path (5.9 ns, 4.3 of it routing). Now every write is made
+    # from registers only: the pipeline's beat is written at `w_ptr` whenever it is valid,
+    # and the handshake only decides whether `w_ptr` moves on (whether the beat is kept; one
+    # taken by the bypass is left in a free slot, to be overwritten). The slot at `w_ptr` is
+    # free whenever `pipe_valid` is high, by the caller's bound. The handshake drives two
+    # 4-bit pointers and the count, not the data.
+    size = 1 << max(1, (capacity - 1).bit_length())
+    ram = memory.Memory(shape=pipe.shape(), depth=size, init=[])
+    m.submodules.obuf = ram
+    wp = ram.write_port()
+    rp = ram.read_port(domain="comb")
+    w_ptr, r_ptr = Signal(range(size)), Signal(range(size))
     held = Signal(range(capacity + 1))  # entries in use
     any_held = Signal()  # held != 0
     m.d.comb += [
+        wp.addr.eq(w_ptr), wp.data.eq(pipe), wp.en.eq(pipe_valid),
+        rp.addr.eq(r_ptr),
         o.valid.eq(any_held | pipe_valid),
-        o.payload.eq(Mux(any_held, buf[0], pipe)),
+        o.payload.eq(Mux(any_held, rp.data, pipe)),
     ]
-    pop = take & any_held  # the head leaves; the rest move down one entry
-    push = pipe_valid & ~(take & ~any_held)  # the pipeline's sample is kept
-    # No arithmetic after the handshake: `held - pop + push` and its zero test were two carry
-    # chains between `o.ready` and `any_held` (6.9 ns). The count is decoded from its register,
-    # and the handshake only chooses between decoded flags and precomputed held +/- 1.
-    held_is = [Signal(name=f"held_is{i}") for i in range(capacity + 1)]
-    m.d.comb += [held_is[i].eq(held == i) for i in range(capacity + 1)]
-    for i in range(capacity):
-        moved = Mux(pop, buf[i + 1] if i + 1 < capacity else 0, buf[i])
-        lands = Mux(pop, held_is[i + 1], held_is[i])  # held - pop == i
-        m.d.sync += buf[i].eq(Mux(push & lands, pipe, moved))
+    pop = take & any_held  # the head leaves
+    push = pipe_valid & ~(take & ~any_held)  # the pipeline's beat is kept
+    # No arithmetic after the handshake: the count is decoded from its register, and the
+    # handshake only chooses between decoded flags and values made from the registers.
+    held_is0, held_is1 = Signal(), Signal()
+    m.d.comb += [held_is0.eq(held == 0), held_is1.eq(held == 1)]
+    w_up, r_up = Signal.like(w_ptr), Signal.like(r_ptr)
     held_up, held_down = Signal.like(held), Signal.like(held)
-    m.d.comb += [held_up.eq(held + 1), held_down.eq(held - 1)]
+    m.d.comb += [w_up.eq(w_ptr + 1), r_up.eq(r_ptr + 1),
+                 held_up.eq(held + 1), held_down.eq(held - 1)]
     m.d.sync += [
+        w_ptr.eq(Mux(push, w_up, w_ptr)),
+        r_ptr.eq(Mux(pop, r_up, r_ptr)),
         held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
-        any_held.eq(push | (~held_is[0] & ~held_is[1]) | (held_is[1] & ~pop)),
+        any_held.eq(push | (~held_is0 & ~held_is1) | (held_is1 & ~pop)),
     ]
 
 
@@ -407,20 +470,22 @@ class MatchedFilter(wiring.Component):
     Notes
     -----
     Latency :data:`LATENCY` = 15 clocks, all registered: (1) the sample and the template index;
-    (2) the sample again and the index's copies, one per group of four taps; (3) the delay line,
-    and the coefficients read from LUT RAM with those copies; (4) the multiplier inputs; (5) the
-    ``L_MAX`` products (4 and 5 are a :class:`RegisteredMultiplier`, the ECP5 DSP block's own
-    registers); (6) the products again, in logic; (7 to 12) the adder tree, one two-input level
-    per stage (64 to 1); (13) the shift ``(2 acc) >> (out_shift & 24)`` and the saturation
-    compares; (14) the rest of the shift, ``>> (out_shift & 7)``; (15) round half up and
-    saturate, the pipeline's last register. One sample per clock sustained while ``o.ready`` is
-    high. The pipeline never stalls: it ends in an output buffer of ``LATENCY + 1`` entries
-    (bypassed when empty), and ``i.ready`` (registered, no path from ``o.ready``) is low while
-    ``LATENCY + 1`` accepted samples are not yet taken at ``o``, so at most that many sit
-    between input and consumer, as in a stalled pipeline of ``LATENCY`` registers. ``i.ready``
-    is also low on a clock with a coefficient write and the 14 after: a write travels a chain of
-    registers, one per group of four taps, and reaches the last group's memories 16 clocks after
-    it was taken (so that no bus is shared by all 64).
+    (2) the sample again, each tap's update flags (from ``taps``) and the index's copies, one
+    per group of four taps; (3) the delay line, and the coefficients read from LUT RAM with
+    those copies; (4) the multiplier inputs; (5) the ``L_MAX`` products (4 and 5 are a
+    :class:`RegisteredMultiplier`, the ECP5 DSP block's own registers); (6) the products again,
+    in logic; (7 to 12) the adder tree, one two-input level per stage (64 to 1); (13) the shift
+    ``(2 acc) >> (out_shift & 24)`` and the saturation compares; (14) the rest of the shift,
+    ``>> (out_shift & 7)``; (15) round half up and saturate, the pipeline's last register. One
+    sample per clock sustained while ``o.ready`` is high. The pipeline never stalls: it ends in
+    an output buffer of ``LATENCY + 1`` entries (a FIFO in LUT RAM, written at every valid last
+    stage from registers alone, bypassed when empty; ``o.payload`` is then the memory's
+    asynchronous read or the last stage), and ``i.ready`` (registered, no path from ``o.ready``)
+    is low while ``LATENCY + 1`` accepted samples are not yet taken at ``o``, so at most that
+    many sit between input and consumer, as in a stalled pipeline of ``LATENCY`` registers.
+    ``i.ready`` is also low on a clock with a coefficient write and the 14 after: a write
+    travels a chain of registers, one per group of four taps, and reaches the last group's
+    memories 16 clocks after it was taken (so that no bus is shared by all 64).
 
     Template selection counts samples, with no divider: when the frame reaches sample
     ``s + bin_offset`` it switches to template 1 (``min(1, K - 1)``), then one template further
@@ -434,8 +499,9 @@ class MatchedFilter(wiring.Component):
     the next clock on (``bin_len`` at the first bin that starts on a sample accepted a clock
     after that, as bins are counted down from it; ``out_shift`` from the shift stage on, its
     saturation bounds a clock before). Coefficients are read two clocks after a sample is
-    accepted: write the bank between frames, with the pipeline's first stages empty. Frames
-    longer than ``2^N_WIDTH - 1`` samples wrap the sample counter.
+    accepted, ``taps`` one clock after: write the bank and change ``taps`` between frames, with
+    the pipeline's first stages empty. Frames longer than ``2^N_WIDTH - 1`` samples wrap the
+    sample counter.
     """
 
     def __init__(self, lanes: int = 1, taps_max: int = L_MAX):
@@ -502,7 +568,8 @@ class MatchedFilter(wiring.Component):
         capacity = LATENCY + 1
         groups = min(K_MAX, L_MAX)  # tap groups, each with its template copy and write link
         wlink, whold = _coef_chain(m, self.coef, groups)
-        accept, take, accept_dl = _flow_control(m, self, capacity, hold_nx=whold)
+        accept, take, accept_dl = _flow_control(m, self, capacity, hold_nx=whold,
+                                                decoded=True)
 
         # ---- frame state: sample counter, tag, surface, template ----
         # The template of an accepted sample must be a few LUTs from registers (it fans out to
@@ -531,11 +598,13 @@ class MatchedFilter(wiring.Component):
         m.d.sync += [len_m2.eq(cfg.bin_len - 2), len_m3.eq(cfg.bin_len - 3)]
 
         # Surface messages: take the current frame's, drop older ones, hold newer ones.
+        # (`tag ==` rather than `diff == 0`: the take, which enables `start`, is then no carry
+        # chain from `tag`.)
         diff = Signal(TAG_WIDTH)
         m.d.comb += diff.eq(self.surface.payload.tag - tag)
         newer = (diff != 0) & ~diff[-1]
         m.d.comb += self.surface.ready.eq(~newer)
-        with m.If(self.surface.valid & (diff == 0) & ~(accept & d.first)):
+        with m.If(self.surface.valid & (self.surface.payload.tag == tag) & ~(accept & d.first)):
             m.d.sync += [s_pend.eq(1),
                          start.eq(self.surface.payload.n + cfg.bin_offset)]
 
@@ -568,26 +637,52 @@ class MatchedFilter(wiring.Component):
             m.d.sync += [left.eq(len_m2), left1.eq(len_m3)]
         with m.Elif(cnt_nx_inc):
             m.d.sync += [left.eq(left1), left1.eq(left1 - 1)]
-        n_eq = Mux(accept, Mux(d.first, start == 1, n1 == start), n == start)
+        # "the next sample is s + bin_offset": n1 == start if one is accepted now, else
+        # n == start (a frame's first sample clears s_known_nx, so its case needs none). This
+        # compare of a start taken at the last edge cannot be made earlier without a clock of
+        # SURFACE_APPLY, so it is kept short: start >= 2^N_WIDTH (no sample reaches it) is its
+        # own register `far_q`, beside the compare of the low N_WIDTH bits; each equality is
+        # two compares, made as the signs of subtractions from registers (14-bit carry chains,
+        # where a 30-bit == was a tree of LUTs), and accept only chooses between them. The
+        # result `eq_q` is registered alone, with `s_known` (= s_known_nx), and `match` is one
+        # LUT of four registers: the register at the end of the compare has one load and sits
+        # by it, not by the template logic that `match` drives.
+        start_lo = start[:N_WIDTH]
+        ge_n1 = _le(start_lo, n1)  # n + 1 >= start
+        ge_n = _le(start_lo, n)  # n >= start
+        gt_n = ~_le(n, start_lo)  # n > start
+        eq_q, far_q, s_known = Signal(), Signal(), Signal()
         m.d.sync += [
             active.eq(active_nx),
-            match.eq(s_known_nx & ~active_nx & n_eq),
+            s_known.eq(s_known_nx),
+            eq_q.eq(Mux(accept, ge_n1 & ~ge_n, ge_n & ~gt_n)),
+            far_q.eq(start[N_WIDTH:] != 0),
         ]
+        m.d.comb += match.eq(s_known & ~active & eq_q & ~far_q)
 
         # ---- stages 1, 2: the sample (twice) and the template `k` (registered: the template
         # decision is the longest path before the memories); stage 3: the delay line, beside
         # the coefficients read with the stage-2 template copies ----
+        # Each tap's update is decided a clock ahead, into registers of its own: `ld{j}` (take
+        # the new sample, j = L - 1), `mv{j}` (take r[j + 1]: j < L - 1 and not a frame's
+        # first sample) and `zr{j}` (clear: a first sample or j > L - 1). One `first2` and one
+        # `shift` register drove all 1 024 delay-line registers (the worst path, 3 ns of its
+        # 5.6 the route out of `first2`); the per-tap flags are distinct functions of L, so
+        # synthesis keeps them apart, and each drives its own 16 registers. So `taps` is read
+        # in the clock after a sample is accepted.
         L = self.taps
         shift1, x1, first1 = Signal(), Signal(STITCHED), Signal()
-        shift, x2, first2 = Signal(), Signal(STITCHED), Signal()
-        m.d.sync += [shift1.eq(accept_dl), x1.eq(d.x), first1.eq(d.first),
-                     shift.eq(shift1), x2.eq(x1), first2.eq(first1)]
+        x2 = Signal(STITCHED)
+        m.d.sync += [shift1.eq(accept_dl), x1.eq(d.x), first1.eq(d.first), x2.eq(x1)]
         r = [Signal(STITCHED, name=f"r{j}") for j in range(L_MAX)]
-        with m.If(shift):
-            for j in range(L_MAX):
-                older = r[j + 1] if j + 1 < L_MAX else 0
-                moved = Mux(first2, 0, Mux(j < L - 1, older, 0))
-                m.d.sync += r[j].eq(Mux(L - 1 == j, x2, moved))
+        for j in range(L_MAX):
+            ld, mv, zr = (Signal(name=f"{w}{j}") for w in ("ld", "mv", "zr"))
+            at = L - 1 == j
+            m.d.sync += [ld.eq(shift1 & at), mv.eq(shift1 & ~at & ~first1 & (j < L - 1)),
+                         zr.eq(shift1 & ~at & (first1 | ~(j < L - 1)))]
+            older = r[j + 1] if j + 1 < L_MAX else 0
+            with m.If(ld | mv | zr):
+                m.d.sync += r[j].eq(Mux(ld, x2, Mux(mv, older, 0)))
         # side band of each stage: valid, k, first, last
         side = data.StructLayout({"valid": 1, "k": _K_SHAPE, "first": 1, "last": 1})
         sb = [Signal(side, name=f"sb{i}") for i in range(1, LATENCY + 1)]
@@ -652,7 +747,8 @@ class MatchedFilter(wiring.Component):
             m.d.sync += [a.eq(v) for a, v in stage]
         pipe = Signal(FILTER_OUT)  # the pipeline's last stage
         last_sb = sb[LATENCY - 1]
-        _round_saturate(m, acc, sh, over_at, under_at, pipe.y, split=True)
+        _round_saturate(m, acc, sh, over_at, under_at, pipe.y, split=True,
+                        split_compare=True)
         m.d.comb += [pipe.k.eq(last_sb.k), pipe.first.eq(last_sb.first),
                      pipe.last.eq(last_sb.last)]
 

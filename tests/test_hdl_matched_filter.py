@@ -25,7 +25,7 @@ from hdl.matched_filter import (
 )
 from hdl.tb.amsim import simulate
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
-from hdl.tb.streams import PLAIN, TRAFFIC
+from hdl.tb.streams import PLAIN, TRAFFIC, Pattern
 from model.bench import synthetic_codes, workload_bank
 from model.detect import filter_and_detect
 from model.matched_filter import COEF_WIDTH, L_MAX, Bank, matched_filter, template_index
@@ -181,8 +181,60 @@ def test_verilator(tmp_path, case_name, traffic_name):
         assert res.sources["i"]["stalls"] > 0
 
 
+def held_between(res) -> np.ndarray:
+    """Samples accepted at ``i`` and not yet taken at ``o``, just after each acceptance."""
+    clk_in, clk_out = res.sources["i"]["clock"], res.sinks["o"]["clock"]
+    return np.arange(1, len(clk_in) + 1) - np.searchsorted(clk_out, clk_in, side="right")
+
+
+@pytest.mark.parametrize("on,off", [(1, 40), (17, 19), (16, 16)])
+def test_verilator_output_buffer_full(tmp_path, on, off):
+    """A sink that stops for longer than the pipeline: the output buffer fills (all
+    ``LATENCY + 1`` admitted samples held), ``i.ready`` falls, and the buffer's pointers wrap
+    many times, bypass and buffer taking turns."""
+    case = random_case(5, 2, seed=3, out_shift=12, bin_offset=25, bin_len=2)
+    res = run(Design(MatchedFilter), tmp_path,
+              **traffic(case, PLAIN, Pattern("periodic", on=on, off=off)),
+              label=f"matched_filter-full-{on}-{off}")
+    check(res, case)
+    assert held_between(res).max() == LATENCY + 1
+    assert res.sources["i"]["stalls"] > 0
+
+
 class TestAmaranthSim:
-    """Quick checks of the surface-message rule in Amaranth's simulator."""
+    """Quick checks of the surface-message rule and of a helper in Amaranth's simulator."""
+
+    def test_ge_split_is_a_compare_two_clocks_late(self):
+        # the saturation compare in halves: widths as at one lane (acc s38, bounds s41), values
+        # at and around the split and the ends of both ranges
+        from amaranth.hdl import Module, Signal, signed
+        from amaranth.sim import Simulator
+
+        from hdl.matched_filter import _ge_split
+
+        m = Module()
+        a, b = Signal(signed(38)), Signal(signed(41))
+        ge = _ge_split(m, a, b, "ge")
+        rng = np.random.default_rng(9)
+        edges = [0, 1, -1, (1 << 21) - 1, 1 << 21, -(1 << 21), (1 << 37) - 1, -(1 << 37)]
+        pairs = [(x, y + d) for x in edges for y in edges for d in (-1, 0, 1)]
+        pairs += [(int(x), int(x + d)) for x, d in zip(rng.integers(-(1 << 37), 1 << 37, 300),
+                                                       rng.integers(-3, 4, 300), strict=True)]
+        pairs += [(int(x), int(y)) for x, y in rng.integers(-(1 << 37), 1 << 37, (300, 2))]
+        got = []
+
+        async def bench(ctx):
+            for x, y in [*pairs, (0, 0)]:
+                ctx.set(a, x)
+                ctx.set(b, y)
+                await ctx.tick()
+                got.append(ctx.get(ge))
+
+        sim = Simulator(m)
+        sim.add_clock(1e-8)
+        sim.add_testbench(bench)
+        sim.run()
+        assert got[1:] == [int(x >= y) for x, y in pairs]  # two ticks after it was set
 
     def test_surface_tags_newer_wait_older_drop(self):
         bank = Bank(np.array([[3], [-5]], np.int16))
