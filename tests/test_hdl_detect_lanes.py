@@ -5,11 +5,14 @@ smallest ``bin_offset`` the join promises to be exact for (``FilterDetect.min_bi
 y and k of every lane and every result field. Echo-like frames (the detector finds surfaces and
 the template walk runs), short and random frames; plain, with idle insertion and with
 backpressure on both outputs. Two Verilator builds: 3 lanes (odd) of 8 taps, without and with
-the detector's lookahead (each at its own ``min_bin_offset``).
+the detector's lookahead (each at its own ``min_bin_offset``); with ``ALBCAP_SLOW_TESTS=1`` also
+the measured 16-lane x 8-tap builds.
 """
 
 from __future__ import annotations
 
+import os
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -88,20 +91,21 @@ def test_bound_grows_with_lookahead():
         fd._MustUse__silence = True
 
 
-@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
-@pytest.mark.parametrize("lookahead", [0, LOOKAHEAD])
-def test_verilator(tmp_path, lookahead, traffic_name):
+def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name):
+    """This file's case through ``FilterDetect(lanes, taps_max, lookahead)`` (the module's
+    ``LANES`` and ``TAPS_MAX`` must be ``lanes`` and ``taps_max``), every y and k of every
+    lane checked against the model; the bank, the model's k and its results."""
     bank, cfg, frames = case(lookahead)
     source, sink = TRAFFIC[traffic_name]
-    params = {"lookahead": lookahead} if lookahead else {}
-    res = run(Design(FilterDetect, lanes=LANES, taps_max=TAPS_MAX, **params), tmp_path,
+    res = run(Design(FilterDetect, lanes=lanes, taps_max=taps_max, lookahead=lookahead),
+              tmp_path,
               sources={"coef": coef_source(bank), "i": sample_source(frames, source)},
-              sinks={"y": Sink(filter_out_layout(LANES), sink),
+              sinks={"y": Sink(filter_out_layout(lanes), sink),
                      "o": Sink(PEAK_RESULT, sink.with_seed(sink.seed + 100))},
               static={**cfg_ports(cfg, "filter", "cfg_filter"),
                       **cfg_ports(cfg, "peak", "cfg_peak"),
                       "templates": bank.K, "taps": bank.L},
-              label=f"filter_detect_lanes_la{lookahead}-{traffic_name}")
+              label=f"filter_detect_{lanes}x{taps_max}_la{lookahead}-{traffic_name}")
     assert not res.timeout, f"timed out after {res.clocks} clocks"
     assert res.violations == {"y": 0, "o": 0}
     y, k, results = expected(bank, cfg, frames)
@@ -113,4 +117,28 @@ def test_verilator(tmp_path, lookahead, traffic_name):
                                f"{getattr(got, name)[bad[0]]} vs model {want[bad[0]]}")
     check_results(res.sinks["o"], results)
     assert sum(bool(r.surface.found) for r in results[:N_ECHO_FRAMES]) >= 3
+    return bank, k, results
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+@pytest.mark.parametrize("lookahead", [0, LOOKAHEAD])
+def test_verilator(tmp_path, lookahead, traffic_name):
+    bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, lookahead, traffic_name)
     assert k.max() == bank.K - 1, "the template walk should reach the last template"
+
+
+#: The measured many-lane builds (``docs/figures/fpga.json``): their Verilator builds take
+#: minutes each, so they run only when ``ALBCAP_SLOW_TESTS=1`` asks.
+BIG_BUILDS = [(16, 8, 0, "idle"), (16, 8, 28, "backpressure")]
+
+
+@pytest.mark.skipif(os.environ.get("ALBCAP_SLOW_TESTS") != "1",
+                    reason="minutes per build; ALBCAP_SLOW_TESTS=1 runs it")
+@pytest.mark.parametrize(("lanes", "taps_max", "lookahead", "traffic_name"), BIG_BUILDS)
+def test_verilator_measured_build(tmp_path, monkeypatch, lanes, taps_max, lookahead,
+                                  traffic_name):
+    """A build whose clock the builds study uses, bit-exact on this file's case (at 16 lanes
+    with the lookahead, ``min_bin_offset`` lies past the 500-sample echo frames: no switch)."""
+    monkeypatch.setattr(sys.modules[__name__], "LANES", lanes)
+    monkeypatch.setattr(sys.modules[__name__], "TAPS_MAX", taps_max)
+    run_join(tmp_path, lanes, taps_max, lookahead, traffic_name)

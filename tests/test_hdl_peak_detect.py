@@ -239,18 +239,25 @@ def check_latencies(res, st, results, dut: PeakDetect):
     assert not frames or min(seen.values()) > 0, seen  # (a saturated threshold finds none)
 
 
-@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
-@pytest.mark.parametrize("config_name", list(CONFIGS))
-def test_verilator(tmp_path, config_name, traffic_name):
-    fr = frames_for(config_name)
+def run_checked(tmp_path, fr, traffic_name, label, **params):
+    """``fr``'s frames through ``PeakDetect(**params)`` in ``traffic_name``, every result and
+    surface message checked against the model; the run and the model's results."""
     source, sink = TRAFFIC[traffic_name]
-    res = run(Design(PeakDetect), tmp_path, **traffic(fr, source, sink),
-              label=f"peak_detect-{config_name}-{traffic_name}")
+    res = run(Design(PeakDetect, **params), tmp_path, **traffic(fr, source, sink),
+              label=f"{label}-{traffic_name}")
     assert not res.timeout, f"timed out after {res.clocks} clocks"
     assert res.violations == {"o": 0, "surface": 0}
     results = fr.results()
     check_results(res.sinks["o"], results)
     check_surfaces(res.sinks["surface"], results)
+    return res, results
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+@pytest.mark.parametrize("config_name", list(CONFIGS))
+def test_verilator(tmp_path, config_name, traffic_name):
+    fr = frames_for(config_name)
+    res, results = run_checked(tmp_path, fr, traffic_name, f"peak_detect-{config_name}")
     if traffic_name == "plain":
         # the result of a frame RESULT_LATENCY clocks after its last sample, the surface
         # SURFACE_LATENCY after y[s + 1], where no wait for the threshold or a result applies
@@ -371,14 +378,8 @@ def test_verilator_lookahead(tmp_path, config_name, traffic_name):
     """The lookahead build against the model: echo, edge (1 sample up to ``W + 2P + 3``,
     shorter than the windows) and random frames; surfaces within ``surface_latency`` beats."""
     fr = frames_for(config_name)
-    source, sink = TRAFFIC[traffic_name]
-    res = run(Design(PeakDetect, lookahead=LOOKAHEAD), tmp_path, **traffic(fr, source, sink),
-              label=f"peak_detect_la-{config_name}-{traffic_name}")
-    assert not res.timeout, f"timed out after {res.clocks} clocks"
-    assert res.violations == {"o": 0, "surface": 0}
-    results = fr.results()
-    check_results(res.sinks["o"], results)
-    check_surfaces(res.sinks["surface"], results)
+    res, results = run_checked(tmp_path, fr, traffic_name, f"peak_detect_la-{config_name}",
+                               lookahead=LOOKAHEAD)
     check_surface_bound(res, fr.ys, results, detector(lookahead=LOOKAHEAD))
 
 

@@ -180,6 +180,18 @@ class Stream:
         return np.array([g is not None for g in self.group])
 
 
+def check_stream(res, st) -> list:
+    """A run of the stream ``st``: no timeout or protocol violation, every result of a real
+    frame (not a separator) and every surface message as the model's; the model's results."""
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"o": 0, "surface": 0}
+    results, real = st.results(), st.real()
+    got = {name: v[real] for name, v in res.sinks["o"].items()}
+    check_results(got, [r for r, keep in zip(results, real, strict=True) if keep])
+    check_surfaces(res.sinks["surface"], results)
+    return results
+
+
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
 @pytest.mark.parametrize("lanes", LANES)
 def test_verilator(tmp_path, lanes, traffic_name):
@@ -192,12 +204,7 @@ def test_verilator(tmp_path, lanes, traffic_name):
               sinks={"o": Sink(PEAK_RESULT, sink), "surface": Sink(SURFACE, PLAIN)},
               static={**cfg_ports(first.cfg, "peak"), "taps": first.L},
               label=f"peak_detect_l{lanes}-{traffic_name}")
-    assert not res.timeout, f"timed out after {res.clocks} clocks"
-    assert res.violations == {"o": 0, "surface": 0}
-    results, real = st.results(), st.real()
-    got = {name: v[real] for name, v in res.sinks["o"].items()}
-    check_results(got, [r for r, keep in zip(results, real, strict=True) if keep])
-    check_surfaces(res.sinks["surface"], results)
+    results = check_stream(res, st)
     if traffic_name == "plain":
         dut = PeakDetect(lanes=lanes)  # for its latency attributes only
         dut._MustUse__silence = True
@@ -258,12 +265,7 @@ def test_verilator_lookahead(tmp_path, traffic_name):
     ``surface_latency`` beats."""
     st = Stream(LA_LANES, separators=LA_SHORT + SEPARATORS)
     res = run_stream(tmp_path, st, LA_LANES, LA_SHORT, traffic_name)
-    assert not res.timeout, f"timed out after {res.clocks} clocks"
-    assert res.violations == {"o": 0, "surface": 0}
-    results, real = st.results(), st.real()
-    got = {name: v[real] for name, v in res.sinks["o"].items()}
-    check_results(got, [r for r, keep in zip(results, real, strict=True) if keep])
-    check_surfaces(res.sinks["surface"], results)
+    results = check_stream(res, st)
     check_surface_bound(res, st.ys, results, detector(LA_LANES, LA_SHORT))
 
 
