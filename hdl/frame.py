@@ -312,7 +312,9 @@ class FramePacketizer(wiring.Component):
         # (that, with `left == 1`, was the worst path: 5.7 ns, 4.4 of routing)
         with m.If(fh_last | j_last):
             m.d.sync += word.eq(buf.r_data)
-        pos = Signal(range(PACKET_HEADER.size + 1))
+        # the link header's byte, one-hot: its compares (the CRC's range, the last byte) are
+        # single bits (`pos == 7` -> the state's loads was the pipeline's worst path, 7.7 ns)
+        pos = Signal(PACKET_HEADER.size)
         left = Signal(_PKT_LEN + 1)  # bytes left in the current section
         # What `left` is loaded with, and whether the frame has items to send, registered at
         # every clock (the result and the header are settled from SIZE on, long before they
@@ -413,7 +415,7 @@ class FramePacketizer(wiring.Component):
                         pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
                                    Const(PacketType.FRAME, 8), seq, body)),
                         sh.eq(Cat(fin, res.surface, res.bottom)),
-                        pos.eq(0),
+                        pos.eq(1),
                         raddr.eq(0),
                         prime.eq(1),
                         seq.eq(seq + 1),
@@ -426,14 +428,14 @@ class FramePacketizer(wiring.Component):
                     m.next = "HEADER"
             with m.State("LINK_HEADER"):
                 m.d.comb += [w_en.eq(1), byte.eq(pkt[:8]),
-                             src.eq(Mux(pos == 6, 1, Mux(pos == 7, 2, 0))),
-                             hv.eq((pos >= 2) & (pos < 6)), hs.eq(pos == 2)]
-                m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos + 1)]
+                             src.eq(Mux(pos[6], 1, Mux(pos[7], 2, 0))),
+                             hv.eq(pos[2:6].any()), hs.eq(pos[2])]
+                m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos << 1)]
                 # two reads (`prime` at pos 0 and 1) fill the buffer's read stages: words 0
                 # and 1 (for a frame of one word or none, the reads beyond are of stale words,
                 # never sent)
-                m.d.sync += prime.eq(pos == 0)
-                with m.If(pos == PACKET_HEADER.size - 1):
+                m.d.sync += prime.eq(pos[0])
+                with m.If(pos[PACKET_HEADER.size - 1]):
                     # frame header, plus the records of a peaks frame
                     m.d.sync += [*load_left(left_hdr, at_hdr), body_start.eq(1)]
                     m.next = "FRAME_HEADER"
