@@ -184,7 +184,6 @@ class FramePacketizer(wiring.Component):
         res = Signal(PEAK_RESULT)
         n = Signal(range(self.max_samples + 1))  # samples taken
         over = Signal()  # the frame had more samples than the buffer holds
-        ftype = hdr.frame_type
 
         # The three input readies are registers, each high exactly in its state (HEADER,
         # COLLECT, RESULT): decoded from the state, they reached into the neighbours'
@@ -234,13 +233,12 @@ class FramePacketizer(wiring.Component):
         count = Signal(2)
         length = Signal(_LEN)
         m.d.comb += length.eq(Mux(peaks_q, count, hdr.length))
-        # bytes per item less two, a register (settled from the header on): decoded from
-        # `frame_type` in the clock of the `j` compare it was the worst path (6.0 ns)
+        # bytes per sample item less two, a register chosen by the one-hot kind flags, as
+        # `len_bytes` below (a peaks frame sends no sample items): decoded from `frame_type`
+        # in the clock of the `j` compare it was the worst path (6.0 ns)
         ibytes_m2 = Signal(range(_REC + 1))
-        with m.Switch(ftype):
-            for t in FrameType:
-                with m.Case(t):
-                    m.d.sync += ibytes_m2.eq(item_bytes(t) - 2)
+        m.d.sync += ibytes_m2.eq(reduce(or_, (Mux(flag, item_bytes(t) - 2, 0)
+                                              for t, flag in kind_q.items())))
         # Frame bytes = header + length x item size, by shifts and adds (item sizes 3, 2, 4, 16):
         # a multiply here went through a DSP block and was the pipeline's critical path
         # (21.7 ns). A samples frame's size depends on the header only, so it is registered
