@@ -9,7 +9,9 @@ emulate`` does, so ``albcap config/load/status/capture --port PATH`` work unchan
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import signal
 import sys
 import tempfile
@@ -29,6 +31,26 @@ def _interrupts():
     signal.signal(signal.SIGTERM, _raise)
 
 
+@contextlib.contextmanager
+def _stdout_to_stderr():
+    """Send file descriptor 1 to stderr for the block, subprocesses included.
+
+    The device's stdout carries its pty path as the first line, which :func:`spawn` and other
+    callers read; a Verilator build inside ``Bridge.start`` (when none is cached) runs make
+    and the compiler, whose output would otherwise come first (seen as "albcap cosim did not
+    start" under load, when another worker had not finished the cached build).
+    """
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def _cmd_cosim(args) -> int:
     from hdl.tb.bridge import Bridge
 
@@ -39,7 +61,8 @@ def _cmd_cosim(args) -> int:
                     prf_clocks=args.prf_clocks, fifo_bytes=args.fifo)
     _interrupts()
     try:
-        bridge.start()
+        with _stdout_to_stderr():
+            bridge.start()
         print(bridge.path, flush=True)
         print(f"albcap cosim: HDL top level in Verilator (build {bridge.build_s:.1f} s), scene "
               f"{args.scene}, a shot every {args.prf_clocks} clocks while acquiring; files in "

@@ -12,13 +12,13 @@ the side FIFOs are sized from the stages' ``LATENCY`` constants, and a stage tha
 register only costs a side FIFO entry's worth of throughput, never a wrong pairing.
 
 Bank switches (the link's ``BANK_COMMIT``). A frame is *inside* from the clock its first sample
-enters the filter to the clock the packetizer takes its detector result; ``frame_idle`` is high
-when none is. The link raises ``bank_busy``, waits for ``frame_idle``, writes the coefficients
-(``coef``), sets ``templates``, ``taps`` and ``bank_id``, and drops ``bank_busy``. While
-``bank_busy`` is high no frame enters the filter (frames wait in the gate's FIFO, so no shot is
-lost unless it overflows), so a frame is filtered with one bank only, and the header carries
-the ``bank_id`` of that bank: the header is handed to the packetizer only once its frame is
-inside, and ``bank_id`` is written into it then.
+passes the hold (into the filter's input slice) to the clock the packetizer takes its detector
+result; ``frame_idle`` is high when none is. The link raises ``bank_busy``, waits for
+``frame_idle``, writes the coefficients (``coef``), sets ``templates``, ``taps`` and ``bank_id``,
+and drops ``bank_busy``. While ``bank_busy`` is high no frame enters the filter (frames wait in
+the gate's FIFO, so no shot is lost unless it overflows), so a frame is filtered with one bank
+only, and the header carries the ``bank_id`` of that bank: the header is handed to the
+packetizer only once its frame is inside, and ``bank_id`` is written into it then.
 """
 
 from __future__ import annotations
@@ -205,8 +205,9 @@ class Pipeline(wiring.Component):
         # Side FIFOs: one entry per sample a stage can hold, plus two so that the fork never
         # waits on them in steady flow.
         ev = m.submodules.beside_stitch = _SideFIFO(ADC_IN.size, stitch.LATENCY + 2)
+        # (beside the filter: its input slice's 3 entries as well)
         cx = m.submodules.beside_filter = _SideFIFO(_BESIDE_FILTER.size,
-                                                    matched_filter.LATENCY + 2)
+                                                    matched_filter.LATENCY + 3 + 2)
 
         wiring.connect(m, wiring.flipped(self.cfg_stitch), st.cfg)
         wiring.connect(m, wiring.flipped(self.cfg_gate), gate.cfg)
@@ -256,16 +257,30 @@ class Pipeline(wiring.Component):
                      gate.o.ready.eq(gs.w_rdy)]
         go = GATE_OUT(gs.r_data)
         hold = go.first & self.bank_busy
+        # A second slice after the hold, so that the filter's input valid is a register: with
+        # the hold's AND (the side FIFO's w_rdy, the slice's r_rdy, bank_busy) in front of the
+        # filter's acceptance it was the pipeline's worst path (beside_filter.w_rdy -> hold ->
+        # the filter's input handshake -> its surface state, 7.5 ns, 132.8 MHz). A frame is
+        # inside from the clock its first sample passes the hold (into this slice), so the
+        # bank cannot change under a frame waiting here; `codes` and `x` enter the side FIFO
+        # at that clock too, which is sized for the slice's entries as well.
+        fs = m.submodules.filter_slice = register_slice(len(fd.i.payload.as_value()))
+        fi = Signal(fd.i.payload.shape())
+        passes = gs.r_rdy & fs.w_rdy & cx.w_rdy & ~hold
         m.d.comb += [
-            fd.i.payload.x.eq(go.x),
-            fd.i.payload.first.eq(go.first),
-            fd.i.payload.last.eq(go.last),
+            fi.x.eq(go.x),
+            fi.first.eq(go.first),
+            fi.last.eq(go.last),
             cx.w_data.eq(Cat(go.codes, go.x)),
-            fd.i.valid.eq(gs.r_rdy & cx.w_rdy & ~hold),
-            cx.w_en.eq(gs.r_rdy & fd.i.ready & ~hold),
-            gs.r_en.eq(fd.i.ready & cx.w_rdy & ~hold),
+            fs.w_data.eq(fi),
+            fs.w_en.eq(gs.r_rdy & cx.w_rdy & ~hold),
+            cx.w_en.eq(gs.r_rdy & fs.w_rdy & ~hold),
+            gs.r_en.eq(fs.w_rdy & cx.w_rdy & ~hold),
+            fd.i.payload.eq(fs.r_data),
+            fd.i.valid.eq(fs.r_rdy),
+            fs.r_en.eq(fd.i.ready),
         ]
-        enters = fd.i.valid & fd.i.ready & go.first
+        enters = passes & go.first
 
         # ---- filter output + beside it -> a register slice -> packetizer samples;
         # result -> packetizer. The slice keeps the packetizer's collect logic (its `i.ready`

@@ -10,9 +10,10 @@ length limits ``W + 2P + 1`` and ``W + 2P + 2``, peaks at ``thr`` and ``thr + 1`
 Every field of every result beat and every surface message is compared, plain, with idle
 insertion and with backpressure, and in plain traffic the stated latencies. One run per lanes
 and traffic holds all five register sets, written between frames (:data:`SEPARATORS`). Two
-Verilator builds: 4 lanes and 3 (an odd count); a third, 4 lanes with a lookahead one beat
-short of hiding the threshold wait, runs the same stream, hundreds of short frames and
-back-to-back frames (one clock's wait each).
+Verilator builds: 4 lanes, and 3 lanes (an odd count) with a lookahead one beat short of hiding
+the threshold wait, which runs the same stream, hundreds of short frames and back-to-back
+frames (one clock's wait each). Three lanes without a lookahead run inside the join
+(``tests/test_hdl_detect_lanes.py``).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from model.peak_detect import peak_detect
 from model.registers import Config
 from model.vectors import lane_words
 
-LANES = (4, 3)
+LANES = (4,)
 
 
 def lane_source(ys, ks, lanes, pattern) -> Source:
@@ -240,9 +241,9 @@ def test_lanes_must_be_positive():
     assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == (4, 38, 22)
 
 
-#: 4 lanes, one beat short of hiding the threshold wait: back-to-back frames wait one clock
-#: each, and the FIFO runs full and D1 waits for statistics in the other traffic.
-LA_LANES = 4
+#: 3 lanes (an odd count), one beat short of hiding the threshold wait: back-to-back frames
+#: wait one clock each, and the FIFO runs full and D1 waits for statistics in the other traffic.
+LA_LANES = 3
 LA_SHORT = detector(LA_LANES).lookahead_hides - 1
 
 
@@ -271,7 +272,8 @@ def test_verilator_lookahead(tmp_path, traffic_name):
 
 def test_verilator_lookahead_one_short(tmp_path):
     """``lookahead_hides - 1`` leaves a wait of one clock per back-to-back frame (so the
-    condition is exact; the one-lane bench shows that ``lookahead_hides`` leaves none)."""
+    condition is exact; the one-lane join's lookahead test shows that ``lookahead_hides``
+    leaves none)."""
     fr = back_to_back(LA_LANES)
     st = SimpleNamespace(ys=fr.ys, ks=fr.ks, group=[fr] * len(fr.ys), changes=[])
     dut = detector(LA_LANES, LA_SHORT)
