@@ -1,20 +1,25 @@
 """Small timing primitives shared by the gate, the frame packetizer and the pipeline's glue.
 
 Written by hand because their point is the shape synthesis gets: a compare kept on a carry
-chain, a counter step chosen among values made from the register alone, and a FIFO whose
+chain, a counter step chosen among values made from the register alone, a FIFO whose
 "not empty" is a register (``amaranth.lib.fifo`` has no variant with unchecked writes and a
-registered flag; its ``SyncFIFOBuffered`` level logic was a worst path of the gate).
+registered flag; its ``SyncFIFOBuffered`` level logic was a worst path of the gate), and a
+state machine with a flip-flop per state (``m.FSM`` has no encoding choice, below).
 """
 
 from __future__ import annotations
 
-from amaranth.hdl import Module, Mux, Signal
+from contextlib import contextmanager
+from functools import reduce
+from operator import or_
+
+from amaranth.hdl import Const, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from ._bram import BlockRAM
 
-__all__ = ["_Store", "_le", "_step"]
+__all__ = ["OneHotFSM", "_Store", "_le", "_step"]
 
 
 def _le(a, b):
@@ -28,6 +33,90 @@ def _step(count, up, down):
     ``count -/+ 1``, which are made from the register alone: the late inputs then pass one
     LUT, not a carry chain."""
     return Mux(up, Mux(down, count, count + 1), Mux(down, count - 1, count))
+
+
+class OneHotFSM:
+    """A state machine with a flip-flop per state, written as with ``m.FSM``.
+
+    Amaranth's ``m.FSM`` keeps a binary state register with an initial value, which Yosys's
+    FSM extraction leaves as it is (it skips registers with an initial value): every state
+    test is then a decode of that register and every transition a choice over all its bits
+    (the packetizer's state -> decode -> next state was the pipeline's worst path, 7.4 ns).
+    Here each state is a register of its own, and its next value is "here and not leaving, or
+    entering": a transition (:meth:`next`, inside its state's block) is a combinational flag
+    assigned under whatever conditions enclose it, so it carries them with it.
+
+    Parameters
+    ----------
+    m : Module
+    states : sequence of str
+        The state names; the first is the initial state unless ``init`` says otherwise.
+    init : str, optional
+    name : str
+        Prefix of the flags' names (``{name}_{state}``, lower case).
+
+    Examples
+    --------
+    ::
+
+        fsm = OneHotFSM(m, ("IDLE", "RUN"), name="ctl")
+        with fsm.state("IDLE"):
+            with m.If(go):
+                fsm.next("RUN")
+        with fsm.state("RUN"):
+            fsm.next("IDLE")
+        fsm.close()  # after the last block: the flags' next values
+    """
+
+    def __init__(self, m: Module, states, *, init: str | None = None, name: str = "fsm"):
+        self._m = m
+        self.states = tuple(states)
+        if len(set(self.states)) != len(self.states) or not self.states:
+            raise ValueError(f"states must be distinct names, at least one: {states!r}")
+        init = self.states[0] if init is None else init
+        if init not in self.states:
+            raise ValueError(f"init {init!r} is not a state of {self.states!r}")
+        self._flags = {s: Signal(init=int(s == init), name=f"{name}_{s.lower()}")
+                       for s in self.states}
+        self._name = name
+        self._moves = []  # (from, to, flag)
+        self._current = None
+        self._closed = False
+
+    def ongoing(self, state: str) -> Signal:
+        """The flag of ``state`` (a register: high while the machine is in it)."""
+        return self._flags[state]
+
+    @contextmanager
+    def state(self, state: str):
+        """The block of statements active in ``state`` (``with m.If`` on its flag)."""
+        if self._current is not None or self._closed:
+            raise RuntimeError(f"state {state!r} opened inside {self._current!r} or after close")
+        self._current = state
+        try:
+            with self._m.If(self._flags[state]):
+                yield
+        finally:
+            self._current = None
+
+    def next(self, state: str) -> None:
+        """Go to ``state`` at the next clock, under the conditions enclosing this call."""
+        if self._current is None:
+            raise RuntimeError("next() outside a state block")
+        if state not in self._flags:
+            raise ValueError(f"{state!r} is not a state of {self.states!r}")
+        move = Signal(name=f"{self._name}_{self._current.lower()}_to_{state.lower()}")
+        self._m.d.comb += move.eq(1)
+        self._moves.append((self._current, state, move))
+
+    def close(self) -> None:
+        """Drive the flags: here and not leaving, or entering."""
+        self._closed = True
+        for s, flag in self._flags.items():
+            out = [t for a, b, t in self._moves if a == s and b != s]
+            into = [t for a, b, t in self._moves if b == s and a != s]
+            self._m.d.sync += flag.eq((flag & ~reduce(or_, out, Const(0)))
+                                      | reduce(or_, into, Const(0)))
 
 
 class _Store(wiring.Component):

@@ -43,7 +43,7 @@ from model.matched_filter import OUT_WIDTH
 from model.registers import by_name
 
 from ._bram import BlockRAM
-from ._primitives import _le, _step, _Store
+from ._primitives import OneHotFSM, _le, _step, _Store
 from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
 from .peak_detect import PEAK_RESULT
 
@@ -378,102 +378,106 @@ class FramePacketizer(wiring.Component):
             bcrc.data.eq(q_byte), bcrc.valid.eq(q_bv), bcrc.start.eq(0), bcrc_clear.eq(q_hs),
         ]
 
-        with m.FSM():
-            with m.State("HEADER"):
-                with m.If(self.header.valid):
-                    m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0), full.eq(0),
-                                 peaks_q.eq(self.header.payload.frame_type == FrameType.PEAKS),
-                                 *(k.eq(self.header.payload.frame_type == t)
-                                   for t, k in kind_q.items()),
-                                 hdr_rdy.eq(0), col_rdy.eq(1)]
-                    m.next = "COLLECT"
-            with m.State("COLLECT"):
-                with m.If(take):
-                    # peak frames need no samples; an overlong frame is dropped at its end
-                    with m.If(~full):
-                        m.d.sync += [n.eq(n + 1), full.eq(n == self.max_samples - 1)]
-                    with m.Else():
-                        m.d.sync += over.eq(1)
-                    with m.If(beat.last):
-                        m.d.sync += [col_rdy.eq(0), res_rdy.eq(1)]
-                        m.next = "RESULT"
-            with m.State("RESULT"):
-                with m.If(self.result.valid):
-                    got_res = self.result.payload
-                    m.d.sync += [res.eq(got_res), res_rdy.eq(0),
-                                 count.eq((got_res.surface.kind != 0)
-                                          + (got_res.bottom.kind != 0))]
-                    m.next = "SIZE"
-            with m.State("SIZE"):
-                # the size is known from the stored result: `body` registers it at this edge,
-                # `fits` compares it with the FIFO's room at the next (two short paths rather
-                # than one long one). The room only grows meanwhile (nothing else writes), so a
-                # decision made a clock early never admits a packet that does not fit.
-                m.next = "ROOM"
-            with m.State("ROOM"):
-                m.next = "DECIDE"
-            with m.State("DECIDE"):
-                with m.If(fits & ~over):
-                    m.d.sync += [
-                        pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
-                                   Const(PacketType.FRAME, 8), seq, body)),
-                        sh.eq(Cat(fin, res.surface, res.bottom)),
-                        pos.eq(1),
-                        raddr.eq(0),
-                        prime.eq(1),
-                        seq.eq(seq + 1),
-                        self.frames_sent.eq(self.frames_sent + 1),
-                    ]
-                    m.next = "LINK_HEADER"
+        # one flip-flop per state (hdl._primitives.OneHotFSM): the state tests and the
+        # transitions read single bits, not a decode of a binary state register
+        fsm = OneHotFSM(m, ("HEADER", "COLLECT", "RESULT", "SIZE", "ROOM", "DECIDE",
+                            "LINK_HEADER", "FRAME_HEADER", "SAMPLES", "CRC"), name="pack")
+        with fsm.state("HEADER"):
+            with m.If(self.header.valid):
+                m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0), full.eq(0),
+                             peaks_q.eq(self.header.payload.frame_type == FrameType.PEAKS),
+                             *(k.eq(self.header.payload.frame_type == t)
+                               for t, k in kind_q.items()),
+                             hdr_rdy.eq(0), col_rdy.eq(1)]
+                fsm.next("COLLECT")
+        with fsm.state("COLLECT"):
+            with m.If(take):
+                # peak frames need no samples; an overlong frame is dropped at its end
+                with m.If(~full):
+                    m.d.sync += [n.eq(n + 1), full.eq(n == self.max_samples - 1)]
                 with m.Else():
-                    m.d.sync += [self.frames_dropped.eq(self.frames_dropped + 1),
-                                 hdr_rdy.eq(1)]
-                    m.next = "HEADER"
-            with m.State("LINK_HEADER"):
-                m.d.comb += [w_en.eq(1), byte.eq(pkt[:8]),
-                             src.eq(Mux(pos[6], 1, Mux(pos[7], 2, 0))),
-                             hv.eq(pos[2:6].any()), hs.eq(pos[2])]
-                m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos << 1)]
-                # two reads (`prime` at pos 0 and 1) fill the buffer's read stages: words 0
-                # and 1 (for a frame of one word or none, the reads beyond are of stale words,
-                # never sent)
-                m.d.sync += prime.eq(pos[0])
-                with m.If(pos[PACKET_HEADER.size - 1]):
-                    # frame header, plus the records of a peaks frame
-                    m.d.sync += load_left(left_hdr, at_hdr)
-                    m.next = "FRAME_HEADER"
-            with m.State("FRAME_HEADER"):
-                m.d.comb += [w_en.eq(1), byte.eq(sh[:8]), bv.eq(1)]
-                # (`left` starts at _HDR or more)
-                m.d.sync += [sh.eq(sh >> 8), *count_left(), fh_last.eq(at[1])]
+                    m.d.sync += over.eq(1)
+                with m.If(beat.last):
+                    m.d.sync += [col_rdy.eq(0), res_rdy.eq(1)]
+                    fsm.next("RESULT")
+        with fsm.state("RESULT"):
+            with m.If(self.result.valid):
+                got_res = self.result.payload
+                m.d.sync += [res.eq(got_res), res_rdy.eq(0),
+                             count.eq((got_res.surface.kind != 0)
+                                      + (got_res.bottom.kind != 0))]
+                fsm.next("SIZE")
+        with fsm.state("SIZE"):
+            # the size is known from the stored result: `body` registers it at this edge,
+            # `fits` compares it with the FIFO's room at the next (two short paths rather
+            # than one long one). The room only grows meanwhile (nothing else writes), so a
+            # decision made a clock early never admits a packet that does not fit.
+            fsm.next("ROOM")
+        with fsm.state("ROOM"):
+            fsm.next("DECIDE")
+        with fsm.state("DECIDE"):
+            with m.If(fits & ~over):
+                m.d.sync += [
+                    pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
+                               Const(PacketType.FRAME, 8), seq, body)),
+                    sh.eq(Cat(fin, res.surface, res.bottom)),
+                    pos.eq(1),
+                    raddr.eq(0),
+                    prime.eq(1),
+                    seq.eq(seq + 1),
+                    self.frames_sent.eq(self.frames_sent + 1),
+                ]
+                fsm.next("LINK_HEADER")
+            with m.Else():
+                m.d.sync += [self.frames_dropped.eq(self.frames_dropped + 1),
+                             hdr_rdy.eq(1)]
+                fsm.next("HEADER")
+        with fsm.state("LINK_HEADER"):
+            m.d.comb += [w_en.eq(1), byte.eq(pkt[:8]),
+                         src.eq(Mux(pos[6], 1, Mux(pos[7], 2, 0))),
+                         hv.eq(pos[2:6].any()), hs.eq(pos[2])]
+            m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos << 1)]
+            # two reads (`prime` at pos 0 and 1) fill the buffer's read stages: words 0
+            # and 1 (for a frame of one word or none, the reads beyond are of stale words,
+            # never sent)
+            m.d.sync += prime.eq(pos[0])
+            with m.If(pos[PACKET_HEADER.size - 1]):
+                # frame header, plus the records of a peaks frame
+                m.d.sync += load_left(left_hdr, at_hdr)
+                fsm.next("FRAME_HEADER")
+        with fsm.state("FRAME_HEADER"):
+            m.d.comb += [w_en.eq(1), byte.eq(sh[:8]), bv.eq(1)]
+            # (`left` starts at _HDR or more)
+            m.d.sync += [sh.eq(sh >> 8), *count_left(), fh_last.eq(at[1])]
+            with m.If(at[0]):
+                # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
+                # high: `fh_last`)
+                m.d.sync += [*load_left(left_items, at_items), j.eq(0), crc_i.eq(0)]
+                with m.If(no_items):
+                    fsm.next("CRC")
+                with m.Else():
+                    fsm.next("SAMPLES")
+        with fsm.state("SAMPLES"):
+            # `left` counts items; the next word waits in the buffer's output register, and
+            # the one after it in its first stage, while this one is sent
+            item_out = Cat(word, word[-1].replicate(8))  # a filtered item's sign byte
+            m.d.comb += [w_en.eq(1), byte.eq(item_out.word_select(j[:2], 8)), bv.eq(1)]
+            m.d.sync += j.eq(j + 1)
+            # j_last: j == ibytes - 1 (every sample item has 2 bytes or more, so a word
+            # loaded is never the last of its item at once)
+            m.d.sync += j_last.eq(~j_last & (j == ibytes_m2))
+            with m.If(j_last):
+                m.d.sync += [j.eq(0), *count_left()]
                 with m.If(at[0]):
-                    # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
-                    # high: `fh_last`)
-                    m.d.sync += [*load_left(left_items, at_items), j.eq(0), crc_i.eq(0)]
-                    with m.If(no_items):
-                        m.next = "CRC"
-                    with m.Else():
-                        m.next = "SAMPLES"
-            with m.State("SAMPLES"):
-                # `left` counts items; the next word waits in the buffer's output register, and
-                # the one after it in its first stage, while this one is sent
-                item_out = Cat(word, word[-1].replicate(8))  # a filtered item's sign byte
-                m.d.comb += [w_en.eq(1), byte.eq(item_out.word_select(j[:2], 8)), bv.eq(1)]
-                m.d.sync += j.eq(j + 1)
-                # j_last: j == ibytes - 1 (every sample item has 2 bytes or more, so a word
-                # loaded is never the last of its item at once)
-                m.d.sync += j_last.eq(~j_last & (j == ibytes_m2))
-                with m.If(j_last):
-                    m.d.sync += [j.eq(0), *count_left()]
-                    with m.If(at[0]):
-                        m.next = "CRC"
-            with m.State("CRC"):
-                m.d.comb += [w_en.eq(1), src.eq(3),
-                             w_last.eq(crc_i == CRC_BYTES - 1)]
-                m.d.sync += crc_i.eq(crc_i + 1)
-                with m.If(crc_i == CRC_BYTES - 1):
-                    m.d.sync += hdr_rdy.eq(1)
-                    m.next = "HEADER"
+                    fsm.next("CRC")
+        with fsm.state("CRC"):
+            m.d.comb += [w_en.eq(1), src.eq(3),
+                         w_last.eq(crc_i == CRC_BYTES - 1)]
+            m.d.sync += crc_i.eq(crc_i + 1)
+            with m.If(crc_i == CRC_BYTES - 1):
+                m.d.sync += hdr_rdy.eq(1)
+                fsm.next("HEADER")
+        fsm.close()
 
         m.d.comb += [
             self.o.payload.eq(fifo.r.payload),

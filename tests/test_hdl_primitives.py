@@ -1,0 +1,113 @@
+"""hdl._primitives.OneHotFSM against Amaranth's own ``m.FSM``, in Amaranth's simulator.
+
+One machine written twice, with ``m.FSM`` (a binary state register) and with
+:class:`~hdl._primitives.OneHotFSM` (a flip-flop per state): transitions under nested
+conditions, a state with two exits, a state left at once, a state that waits, and a
+register written in a state block. Both get the same seeded random inputs; the state and
+the register must agree at every clock, and exactly one flag must be high.
+(``_Store``, the other primitive with state, is tested in ``tests/test_hdl_bram.py``.)
+"""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+from amaranth.hdl import Elaboratable, Module, Signal
+from amaranth.sim import Simulator
+
+from hdl._primitives import OneHotFSM
+
+STATES = ("IDLE", "LOAD", "RUN", "DONE")
+
+
+class _Pair(Elaboratable):
+    """The machine twice: ``m.FSM`` and ``OneHotFSM``, sharing the inputs ``a``, ``b``."""
+
+    def __init__(self):
+        self.a, self.b = Signal(), Signal()
+        self.count_ref, self.count = Signal(4), Signal(4)
+        self.state_ref = Signal(range(len(STATES)))
+        self.flags = None
+
+    def body(self, m, state, next_, count):
+        """The transitions, written once for both machines."""
+        with state("IDLE"):
+            with m.If(self.a):
+                m.d.sync += count.eq(0)
+                with m.If(self.b):
+                    next_("RUN")
+                with m.Else():
+                    next_("LOAD")
+        with state("LOAD"):
+            next_("RUN")
+        with state("RUN"):
+            m.d.sync += count.eq(count + 1)
+            with m.If(count == 5):
+                next_("DONE")
+            with m.Elif(self.a & self.b):
+                next_("IDLE")
+        with state("DONE"):
+            with m.If(~self.a):
+                next_("IDLE")
+
+    def elaborate(self, platform):
+        m = Module()
+        with m.FSM() as ref:
+            def next_ref(s):
+                m.next = s
+            self.body(m, m.State, next_ref, self.count_ref)
+        m.d.comb += self.state_ref.eq(
+            sum(ref.ongoing(s) * i for i, s in enumerate(STATES)))
+        fsm = OneHotFSM(m, STATES, name="t")
+        self.body(m, fsm.state, fsm.next, self.count)
+        fsm.close()
+        self.flags = [fsm.ongoing(s) for s in STATES]
+        return m
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_same_as_amaranth_fsm(seed):
+    dut = _Pair()
+    rng = random.Random(seed)
+    seen = set()
+
+    async def bench(ctx):
+        for _ in range(400):
+            ctx.set(dut.a, rng.random() < 0.5)
+            ctx.set(dut.b, rng.random() < 0.5)
+            await ctx.tick()
+            flags = [ctx.get(f) for f in dut.flags]
+            ref = ctx.get(dut.state_ref)
+            assert sum(flags) == 1, flags
+            assert flags.index(1) == ref
+            assert ctx.get(dut.count) == ctx.get(dut.count_ref)
+            seen.add(STATES[ref])
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-6)
+    sim.add_testbench(bench)
+    sim.run()
+    assert seen == set(STATES)
+
+
+def test_refusals():
+    m = Module()
+    m._MustUse__silence = True  # never elaborated: only the helper's checks
+    with pytest.raises(ValueError, match=r"^states must be distinct names, at least one: "):
+        OneHotFSM(m, ("A", "A"))
+    with pytest.raises(ValueError, match=r"^init 'C' is not a state of \('A', 'B'\)$"):
+        OneHotFSM(m, ("A", "B"), init="C")
+    fsm = OneHotFSM(m, ("A", "B"))
+    with pytest.raises(RuntimeError, match=r"^next\(\) outside a state block$"):
+        fsm.next("B")
+    with fsm.state("A"):
+        with pytest.raises(ValueError, match=r"^'C' is not a state of \('A', 'B'\)$"):
+            fsm.next("C")
+        with pytest.raises(RuntimeError, match=r"^state 'B' opened inside 'A'"):
+            with fsm.state("B"):
+                pass
+    fsm.close()
+    with pytest.raises(RuntimeError, match=r"after close$"):
+        with fsm.state("B"):
+            pass
