@@ -210,8 +210,9 @@ class PeakDetect(wiring.Component):
     ----------
     i : In(stream.Signature(filter_out_layout(lanes)))
         ``y`` (s24), its template ``k`` and the frame markers (one lane: ``FILTER_OUT``; more:
-        arrays of ``lanes`` samples with ``count``). A frame starts with ``first`` and ends with
-        ``last`` (a frame's state is cleared after its last sample).
+        arrays of ``lanes`` samples with ``count``; a frame starts in lane 0 and only its last
+        beat may be partial). A frame starts with ``first`` and ends with ``last`` (a frame's
+        state is cleared after its last sample).
     o : Out(stream.Signature(PEAK_RESULT))
         One beat per frame, in frame order: ``mu``, ``noise``, ``thr`` and the surface and
         bottom records. A frame shorter than ``W + 2P + 2`` reports ``mu = noise = 0``,
