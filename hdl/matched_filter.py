@@ -35,6 +35,7 @@ from ._primitives import _le
 from .layouts import STITCHED, config_signature
 
 __all__ = [
+    "CAPACITY",
     "COEF_WRITE",
     "FILTER_IN",
     "FILTER_OUT",
@@ -59,6 +60,9 @@ N_WIDTH = by_name("gate_len").width
 TAG_WIDTH = 8
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
 LATENCY = 15
+#: Samples accepted and not yet taken at the output, at most (one lane): ``i.ready`` is low
+#: while this many are inside. The pipeline sizes the FIFO beside the filter by it.
+CAPACITY = LATENCY + 1
 
 #: Clock edges from the one that takes a surface message to the first one whose accepted sample
 #: uses it (the template compares are made a clock ahead; see :class:`MatchedFilter`).
@@ -565,7 +569,7 @@ class MatchedFilter(wiring.Component):
         # LATENCY + 1 of them keeps one sample per clock when `o` is ready, never overflows the
         # buffer, and holds no more samples between the input and the consumer than a stalled
         # pipeline of LATENCY registers did (the surface feedback bound counts on that).
-        capacity = LATENCY + 1
+        capacity = CAPACITY
         groups = min(K_MAX, L_MAX)  # tap groups, each with its template copy and write link
         wlink, whold = _coef_chain(m, self.coef, groups)
         accept, take, accept_dl = _flow_control(m, self, capacity, hold_nx=whold,

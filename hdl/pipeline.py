@@ -8,8 +8,9 @@
 Each stage is the component of its own module; this one only joins them. Values that a stage
 does not carry travel beside it in a small FIFO and are joined again at its output (codes and
 events beside the stitch, codes and ``x`` beside the filter), so no stage latency is assumed:
-the side FIFOs are sized from the stages' ``LATENCY`` constants, and a stage that grows a
-register only costs a side FIFO entry's worth of throughput, never a wrong pairing.
+the side FIFOs are sized from the stages' ``LATENCY`` and ``CAPACITY`` constants, and a stage
+that grows a register only costs a side FIFO entry's worth of throughput, never a wrong
+pairing.
 
 Bank switches (the link's ``BANK_COMMIT``). A frame is *inside* from the clock its first sample
 passes the hold (into the filter's input slice) to the clock the packetizer takes its detector
@@ -50,6 +51,8 @@ ADC_IN = data.StructLayout({
 })
 
 _BESIDE_FILTER = data.StructLayout({"codes": CODES, "x": STITCHED})
+#: The filter's input slice: the filter's beat, and the codes that go beside the filter.
+_FILTER_SLICE = data.StructLayout({"beat": matched_filter.FILTER_IN, "codes": CODES})
 _INSIDE_BITS = 8  # frames inside the filter/detector: a handful at most
 
 
@@ -205,9 +208,10 @@ class Pipeline(wiring.Component):
         # Side FIFOs: one entry per sample a stage can hold, plus two so that the fork never
         # waits on them in steady flow.
         ev = m.submodules.beside_stitch = _SideFIFO(ADC_IN.size, stitch.LATENCY + 2)
-        # (beside the filter: its input slice's 3 entries as well)
+        # (beside the filter: written as the filter accepts, so it holds at most the filter's
+        # CAPACITY; one entry more, and a write never finds it full)
         cx = m.submodules.beside_filter = _SideFIFO(_BESIDE_FILTER.size,
-                                                    matched_filter.LATENCY + 3 + 2)
+                                                    matched_filter.CAPACITY + 1)
 
         wiring.connect(m, wiring.flipped(self.cfg_stitch), st.cfg)
         wiring.connect(m, wiring.flipped(self.cfg_gate), gate.cfg)
@@ -262,23 +266,28 @@ class Pipeline(wiring.Component):
         # filter's acceptance it was the pipeline's worst path (beside_filter.w_rdy -> hold ->
         # the filter's input handshake -> its surface state, 7.5 ns, 132.8 MHz). A frame is
         # inside from the clock its first sample passes the hold (into this slice), so the
-        # bank cannot change under a frame waiting here; `codes` and `x` enter the side FIFO
-        # at that clock too, which is sized for the slice's entries as well.
-        fs = m.submodules.filter_slice = register_slice(len(fd.i.payload.as_value()))
-        fi = Signal(fd.i.payload.shape())
-        passes = gs.r_rdy & fs.w_rdy & cx.w_rdy & ~hold
+        # bank cannot change under a frame waiting here. The codes ride in the slice and enter
+        # the side FIFO as the filter accepts the sample: the side FIFO then holds exactly the
+        # samples inside the filter, at most its LATENCY + 1 (the filter admits no more), so
+        # with CAPACITY + 1 entries it always has room and its w_rdy need gate nothing (written
+        # at the hold, through it, it was the worst path after that: 6.4 ns, 155.5 MHz).
+        fs = m.submodules.filter_slice = register_slice(_FILTER_SLICE.size)
+        fi = Signal(_FILTER_SLICE)
+        fo = _FILTER_SLICE(fs.r_data)
+        passes = gs.r_rdy & fs.w_rdy & ~hold
         m.d.comb += [
-            fi.x.eq(go.x),
-            fi.first.eq(go.first),
-            fi.last.eq(go.last),
-            cx.w_data.eq(Cat(go.codes, go.x)),
+            fi.beat.x.eq(go.x),
+            fi.beat.first.eq(go.first),
+            fi.beat.last.eq(go.last),
+            fi.codes.eq(go.codes),
             fs.w_data.eq(fi),
-            fs.w_en.eq(gs.r_rdy & cx.w_rdy & ~hold),
-            cx.w_en.eq(gs.r_rdy & fs.w_rdy & ~hold),
-            gs.r_en.eq(fs.w_rdy & cx.w_rdy & ~hold),
-            fd.i.payload.eq(fs.r_data),
+            fs.w_en.eq(gs.r_rdy & ~hold),
+            gs.r_en.eq(fs.w_rdy & ~hold),
+            fd.i.payload.eq(fo.beat),
             fd.i.valid.eq(fs.r_rdy),
             fs.r_en.eq(fd.i.ready),
+            cx.w_data.eq(Cat(fo.codes, fo.beat.x)),
+            cx.w_en.eq(fs.r_rdy & fd.i.ready),
         ]
         enters = passes & go.first
 
