@@ -106,19 +106,21 @@ def test_frames(tmp_path, scene, ftype, sink_name):
 
 
 def test_overload_drops_whole_frames(tmp_path, scene):
-    """Small FIFO, slow consumer, triggers faster than the packets leave: drops, all whole."""
+    """Slow consumer, triggers faster than the packets leave: the FIFO fills and frames are
+    dropped, all whole. (The production build, 32 KiB: stitched packets of 1 512 bytes come
+    every 814 clocks and leave at a byte per 3 clocks, so the FIFO is full after some 26
+    frames; a build with a small FIFO would cost a Verilator build of its own.)"""
     src, bank, cfg = scene
     cfg = cfg.replace(frame_type=FrameType.STITCHED)
-    fifo = 4000  # two stitched packets (1 512 bytes each) fit, a third does not
-    n, prf = 12, cfg.gate_len + 64
-    res = run_pipeline(tmp_path, Design(Pipeline, fifo_bytes=fifo), src, bank, cfg, n, prf,
-                       Pattern("periodic", on=1, off=5), "pipeline-overload",
+    n, prf = 34, cfg.gate_len + 64
+    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, n, prf,
+                       Pattern("periodic", on=1, off=2), "pipeline-overload",
                        max_clocks=400_000)
     assert not res.timeout and res.violations == {"o": 0}
     got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
     ref = reference_frames(src, cfg, bank, 0, n, prf, bank_id=BANK_ID)
     shots = [int.from_bytes(g[8 + 10:8 + 12], "little") for g in got]
-    assert shots == sorted(set(shots)) and len(shots) < n
+    assert shots == sorted(set(shots)) and n - len(shots) >= 3, shots
     for seq, (g, s) in enumerate(zip(got, shots, strict=True)):
         assert g == encode_packet(PacketType.FRAME, seq, ref[s]), f"shot {s} differs"
     w = res.watch
