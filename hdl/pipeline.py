@@ -314,19 +314,25 @@ class Pipeline(wiring.Component):
         # The counts step by a choice among register values (`_step`), and "a header may go"
         # is a register beside its count (`ready_h`), not a compare: it gates the gate's
         # header read, and the handshakes reach it.
+        # A frame's entry is counted a clock after it passes the hold (`entered`): straight
+        # from the hold's AND into the counts' enables it was the pipeline's worst path
+        # (6.95 ns, 143.9 MHz). `frame_idle` sees the pending count, so it never reads idle
+        # with a frame just past the hold.
+        entered = Signal()
+        m.d.sync += entered.eq(enters)
         inside = Signal(_INSIDE_BITS)  # frames entered, results not yet taken
         waiting = Signal(_INSIDE_BITS)  # frames entered, headers not yet taken
         ready_h = Signal()  # waiting != 0
         h_take = pk.header.valid & pk.header.ready
-        m.d.sync += [inside.eq(_step(inside, enters, done)),
-                     waiting.eq(_step(waiting, enters, h_take)),
-                     ready_h.eq(enters | Mux(h_take, waiting != 1, ready_h))]
+        m.d.sync += [inside.eq(_step(inside, entered, done)),
+                     waiting.eq(_step(waiting, entered, h_take)),
+                     ready_h.eq(entered | Mux(h_take, waiting != 1, ready_h))]
         m.d.comb += [
             pk.header.payload.eq(gate.header.payload),
             pk.header.payload.bank_id.eq(self.bank_id),
             pk.header.valid.eq(gate.header.valid & ready_h),
             gate.header.ready.eq(pk.header.ready & ready_h),
-            self.frame_idle.eq(inside == 0),
+            self.frame_idle.eq((inside == 0) & ~entered),
         ]
 
         # ---- counters ----
