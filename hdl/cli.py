@@ -75,7 +75,7 @@ def _synth(args) -> int:
                 f"--param {key}: the value must be an integer, not {value!r}") from None
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
-    res = synth_all(args.component, args.freq, params or None)
+    res = synth_all(args.component, args.freq, params or None, args.router)
     if args.out is not None:
         from .synth import record_figures
 
@@ -110,6 +110,10 @@ def register(subparsers) -> None:
     syn.add_argument("--component", action="append", choices=sorted(synth_components()),
                      help="only this component (repeatable; default all)")
     syn.add_argument("--freq", type=float, default=200.0, help="clock constraint, MHz")
+    from .synth import ROUTERS
+
+    syn.add_argument("--router", choices=ROUTERS, default="router1",
+                     help="nextpnr's router (router2 for congested many-lane joins)")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")

@@ -86,8 +86,11 @@ def synth_components() -> dict:
     return {**COMPONENTS, **_extra_components()}
 
 
+ROUTERS = ("router1", "router2")
+
+
 def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
-               work_dir=None, params: dict | None = None) -> dict:
+               work_dir=None, params: dict | None = None, router: str = "router1") -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -105,6 +108,11 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     params : dict, optional
         Constructor keywords of the component (e.g. ``{"lanes": 8, "taps_max": 16}``);
         default its production parameters.
+    router : {"router1", "router2"}
+        nextpnr's router. ``router1`` (nextpnr's default) gave every figure of the one-lane
+        stages; ``router2`` routes congested many-lane joins that ``router1`` does not finish
+        (the 16-lane join was still ripping up 124 k arcs after an hour). Recorded in the
+        result, since the two place the same netlist differently.
 
     Returns
     -------
@@ -113,6 +121,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     """
     from amaranth.back import verilog
 
+    if router not in ROUTERS:
+        raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
     components = synth_components()
     if name not in components:
         raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
@@ -136,7 +146,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
               DEVICE["package"], "--json", f"{name}.json", "--freq", str(target_mhz),
               "--out-of-context", "--timing-allow-fail", "--seed", "1",
-              "--report", "report.json"], wd, f"nextpnr-ecp5 on {name}")
+              "--router", router, "--report", "report.json"], wd, f"nextpnr-ecp5 on {name}")
         report = json.loads((wd / "report.json").read_text())
     util = {k: v["used"] for k, v in report.get("utilization", {}).items()}
     fmax = [v["achieved"] for v in report.get("fmax", {}).values()]
@@ -154,17 +164,20 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         **extra,
         "samples_per_s": round(lanes * f * 1e6),
         "target_mhz": target_mhz,
+        "router": router,
         "seconds": round(time.perf_counter() - t0, 1),
     }
 
 
-def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None) -> dict:
+def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
+              router: str = "router1") -> dict:
     """:func:`synthesize` every component (and the pipeline, when it exists); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
     component named, so give them with one component at a time."""
     names = sorted(synth_components()) if not names else list(names)
     return {"device": DEVICE,
-            "components": {n: synthesize(n, target_mhz, params=params) for n in names}}
+            "components": {n: synthesize(n, target_mhz, params=params, router=router)
+                           for n in names}}
 
 
 def figure_key(name: str, params: dict | None = None) -> str:

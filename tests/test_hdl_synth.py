@@ -17,22 +17,29 @@ class TestSynth:
         assert 40 < r["fmax_mhz"] < 600
         assert abs(r["samples_per_s"] - r["fmax_mhz"] * 1e6) < 1e5  # one lane
         assert (tmp_path / "report.json").exists() and (tmp_path / "albcap_stitch.v").exists()
+        assert r["router"] == "router1"
 
     def test_command_json(self, capsys, tmp_path):
         out = tmp_path / "fpga.json"
+        # router2 here, so that the option reaches nextpnr (router1 runs in the test above)
         assert main(["hdl", "synth", "--json", "--component", "albcap_stitch",
-                     "--out", str(out)]) == 0
+                     "--router", "router2", "--out", str(out)]) == 0
         res = json.loads(capsys.readouterr().out)
         assert json.loads(out.read_text())["figures"]["albcap_stitch"]["fmax_mhz"] == \
             res["components"]["albcap_stitch"]["fmax_mhz"]
         assert res["device"]["part"] == "LFE5U-85F"
         assert set(res["components"]) == {"albcap_stitch"}
+        assert res["components"]["albcap_stitch"]["router"] == "router2"
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
             res["components"]["albcap_stitch"])
 
     def test_unknown_component(self):
         with pytest.raises(ValueError, match="unknown component 'albcap_fft'"):
             synthesize("albcap_fft")
+
+    def test_unknown_router(self):
+        with pytest.raises(ValueError, match="router must be one of .*, not 'router3'"):
+            synthesize("albcap_stitch", router="router3")
 
     def test_param_errors(self, capsys):
         for args, msg in ((["--param", "lanes"], "--param wants NAME=VALUE"),
