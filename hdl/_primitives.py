@@ -1,4 +1,5 @@
-"""Small timing primitives shared by the gate, the frame packetizer and the pipeline's glue.
+"""Small timing primitives shared by the gate, the frame packetizer, the peak detector and the
+pipeline's glue.
 
 Written by hand because their point is the shape synthesis gets: a compare kept on a carry
 chain, a counter step chosen among values made from the register alone, a FIFO whose
@@ -13,13 +14,14 @@ from contextlib import contextmanager
 from functools import reduce
 from operator import or_
 
-from amaranth.hdl import Const, Module, Mux, Signal
+from amaranth.hdl import Const, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from ._bram import BlockRAM
 
-__all__ = ["OneHotFSM", "_Store", "_le", "_step"]
+__all__ = ["OneHotFSM", "_Store", "_delay", "_le", "_reg", "_room", "_step", "_sub_sign",
+           "_sum_tree"]
 
 
 def _le(a, b):
@@ -33,6 +35,62 @@ def _step(count, up, down):
     ``count -/+ 1``, which are made from the register alone: the late inputs then pass one
     LUT, not a carry chain."""
     return Mux(up, Mux(down, count, count + 1), Mux(down, count - 1, count))
+
+
+def _room(count, cap, up, down):
+    """``count + up - down <= cap - 1`` (one-bit ``up``, ``down``; ``count <= cap``): the
+    counter's compares with constants, then one LUT with the moves."""
+    return ((count <= cap - 2) | ((count == cap - 1) & (~up | down))
+            | ((count == cap) & down & ~up))
+
+
+def _sub_sign(m, a, b, name):
+    """``a < b`` as the sign of ``a - b``: synthesis keeps a subtraction on the carry chain,
+    where it turned the compare into a chain of six LUTs (a worst path)."""
+    # The test of _le (a < b is ~_le(b, a)), but through a signal of its own, `{name}_sub`
+    # (signed, two bits wider than the wider operand, so any mix of signedness fits): the
+    # named difference is what the netlist and the timing reports show. The peak detector's
+    # logic was measured with it; _le in its place would change the generated Verilog.
+    d = Signal(signed(max(len(a), len(b)) + 2), name=f"{name}_sub")
+    m.d.comb += d.eq(a - b)
+    return d[-1]
+
+
+def _reg(m, value, shape, name, reset_less=False):
+    """``value`` registered: a ``Signal(shape)`` called ``name``, loaded at every clock."""
+    s = Signal(shape, name=name, reset_less=reset_less)
+    m.d.sync += s.eq(value)
+    return s
+
+
+def _delay(m, value, n, name, shape=None):
+    """``value`` delayed ``n`` clocks (free running); a list of all ``n + 1`` taps."""
+    shape = value.shape() if shape is None else shape
+    taps = [value]
+    for i in range(n):
+        taps.append(_reg(m, taps[-1], shape, f"{name}_{i + 1}"))
+    return taps
+
+
+def _sum_tree(m, values, name):
+    """A pipelined adder tree: one two-input level per clock; returns the root register.
+
+    The root holds the sum of ``values`` ``ceil(log2 len(values))`` clocks after them; each
+    level is one bit wider than its widest input.
+    """
+    level, depth = list(values), 0
+    while len(level) > 1:
+        depth += 1
+        nxt = []
+        for j in range(0, len(level), 2):
+            pair = level[j:j + 2]
+            shape = pair[0].shape()
+            width = max(len(v) for v in pair) + 1
+            total = pair[0] + pair[1] if len(pair) == 2 else pair[0]
+            nxt.append(_reg(m, total, signed(width) if shape.signed else unsigned(width),
+                            f"{name}_l{depth}_{j // 2}"))
+        level = nxt
+    return level[0]
 
 
 class OneHotFSM:

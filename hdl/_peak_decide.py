@@ -1,0 +1,389 @@
+"""The peak detector's decision: local maxima, the surface, the rule-2 minimum and the bottom.
+
+Private part of :class:`hdl.peak_detect.PeakDetect`, built by :func:`decide` for
+:func:`hdl._peak_lanes.elaborate` (whose module docstring describes the whole design). A free
+running pipeline with a valid bit per stage, fed by ``D1`` as a beat leaves it (``go``):
+
+* D2a, D2 (:func:`_local_maxima`): per lane the compares of a local maximum above the bound,
+  then their AND;
+* D3 (:func:`_surface`): the surface (the frame's first peak) and its message; the lanes
+  eligible as a bottom;
+* D4 (:func:`_surface_record`): ``s + min_sep``, the surface's record, the divider's snapshot;
+* P (:func:`_prefix_minimum`): the segmented prefix minimum across the lanes (rule 2), two
+  clocks a level;
+* V (:func:`_running_minimum`): the running minimum from beat to beat (two clocks);
+* R, K and the max-tree (:func:`_best_lane`): the key per lane, eligible and above ``thr``,
+  the best lane;
+* B, C (:func:`_bottom`): the bottom against the frame's best, then its record.
+
+The beat's samples travel beside the stages in a delay line (``beat_i``, ``valid_i``) to C,
+``4 levels + 8`` clocks after D2, so that the records (about 90 bits) are made a clock after
+the loops decide, from the beat's copy, and no wide mux hangs on a loop compare.
+"""
+
+from __future__ import annotations
+
+from functools import reduce
+from operator import and_, or_
+from typing import NamedTuple
+
+from amaranth.hdl import Array, Const, Mux, Signal, unsigned
+from amaranth.lib import data
+
+from ._peak_common import _POS, thr_as_key
+from ._primitives import _delay, _reg, _sub_sign
+from .matched_filter import TAG_WIDTH
+from .peak_detect import _KEY, _Y, record_layout
+
+__all__ = ["FrameEnd", "decide"]
+
+_SEP = unsigned(_POS.width + 1)  # a centre plus a capped min_sep
+
+
+class FrameEnd(NamedTuple):
+    """What the frame end takes from the decision, at a frame's last beat."""
+
+    s_fin: Signal  #: the surface's record (``record_layout``; all zero when none)
+    b_fin: Signal  #: the bottom's record (likewise)
+    end_valid: Signal  #: one clock: the frame's last beat has left C (``s_fin``, ``b_fin``)
+    end_long: Signal  #: that beat needed the threshold (the frame reaches ``W + 2P + 1``)
+
+
+def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le, ms_lane,
+           stats) -> FrameEnd:
+    """Build the decision into ``m``, from D2 to C.
+
+    Parameters
+    ----------
+    m : Module
+    top : PeakDetect
+        Its ``lanes``, ``lookahead``, ``cfg`` (``bottom_rule``) and ``surface`` port (driven
+        here).
+    levels : int
+        ``ceil(log2 lanes)``.
+    go : Signal
+        D1's beat leaves (a register).
+    d1, d1_base, d1_needs, d1_tag
+        D1's beat (``y``, ``k``, ``count``, ``first``, ``last`` of ``lanes`` samples), its first
+        sample's place in the frame (``_POS``), whether it reaches ``W + 2P + 1`` and its
+        frame's tag.
+    cand_at : list of Signal
+        Per lane ``j``, ``W + 2P + 1 - j``: with the beat's base at or past it, the lane's
+        centre ``base + j - 1`` is a candidate (at or past ``W + 2P``).
+    ms_le : list of Signal
+        ``min_sep <= i`` for ``i`` in ``0..3 lanes - 1`` (lane distances over three beats).
+    ms_lane : list of Signal
+        Per lane ``j``, ``min_sep + j - 1`` (capped): ``s + min_sep`` is ``base + ms_lane[j]``.
+    stats : hdl._peak_stats.WindowStats
+        ``bound`` (``y > bound``: above the threshold) and ``thr`` (or, with the lookahead,
+        ``cur_thr_k``) for rule 2.
+
+    Returns
+    -------
+    FrameEnd
+
+    Notes
+    -----
+    Latency, ``d = levels``: the surface message is valid 3 clocks after ``go`` (D3's edge);
+    a frame's last beat reaches C (``end_valid``) ``4d + 11`` clocks after its ``go``. The
+    surface's record is taken a clock after the last beat's D4 (``s_fin``), the bottom's at C.
+    """
+    cfg, L, LA, depth = top.cfg, top.lanes, top.lookahead, levels
+    rec = record_layout(d1.k.shape().elem_shape)
+    d2, d2_valid, d2_peak, d2a_cpos, d2_cpos = _local_maxima(
+        m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, stats.bound)
+    s_found, sep_at, d3_new, d3_elig = _surface(m, top.surface, L, d2, d2_valid, d2_peak,
+                                                d2a_cpos, d2_cpos, ms_le)
+    # the beat's samples travel with it to C (4 depth + 8 clocks after D2)
+    bd = _delay(m, d2, 4 * depth + 8, "beat")
+    vd = _delay(m, d2_valid, 4 * depth + 8, "valid")
+    s_fin = _surface_record(m, L, rec, bd, vd, d3_new, sep_at, s_found, ms_lane)
+    pm, seg = _prefix_minimum(m, L, depth, bd, d3_new)
+    # "eligible as a bottom" travels beside the minimum to R
+    elig = _delay(m, d3_elig, 2 * depth + 1, "elig")
+    run_min = _running_minimum(m, L, depth, pm, seg, vd)
+    elig_v = _reg(m, elig[-1], L, "elig_v")
+    win, node = _best_lane(m, cfg, L, depth, bd, run_min, elig_v,
+                           stats.cur_thr_k if LA else stats.thr, LA)
+    return FrameEnd(s_fin, *_bottom(m, cfg, L, rec, bd, vd, win, node))
+
+
+def _lane_record(m, rec, bt, j, n):
+    """Lane ``j``'s peak record from a beat's copy ``bt`` (``e``: the two samples before and
+    the lanes, ``ke``: their templates), centre sample ``n``."""
+    r = Signal(rec, name=f"lane_rec{j}")
+    m.d.comb += [r.found.eq(1), r.n.eq(n), r.a.eq(bt.e[j]), r.b.eq(bt.e[j + 1]),
+                 r.c.eq(bt.e[j + 2]), r.k.eq(bt.ke[j + 1])]
+    return r
+
+
+def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound):
+    """D2a, D2: the local-maximum tests per lane, as the beat leaves D1.
+
+    Returns the beat's copy at D2 (``e``: the previous beat's last two samples and the lanes,
+    ``ke``, ``base``, ``first``, ``last``, ``long``, ``tag``), its valid bit, the peak flags
+    per lane and the centres' positions at D2a and D2.
+    """
+    k_shape = d1.k.shape().elem_shape
+    y1, y2 = Signal(_Y), Signal(_Y)  # the last two samples of the previous beat
+    k1, k2 = Signal(k_shape), Signal(k_shape)
+    ev = [y2, y1] + [d1.y[j] for j in range(L)]
+    kv = [k2, k1] + [d1.k[j] for j in range(L)]
+    with m.If(go):
+        m.d.sync += [y2.eq(ev[L]), y1.eq(ev[L + 1]), k2.eq(kv[L]), k1.eq(kv[L + 1])]
+    beat = data.StructLayout({"e": data.ArrayLayout(_Y, L + 2),
+                              "ke": data.ArrayLayout(k_shape, L + 2),
+                              "base": _POS, "first": 1, "last": 1, "long": 1,
+                              "tag": TAG_WIDTH})
+    # D2a registers the compares of each lane, D2 their conjunction (compares and the
+    # six-input AND in one clock were a worst path). The three 24-bit compares are the signs
+    # of subtractions: as compares, Yosys put two LUTs (the signed overflow) after each carry
+    # chain, and `bound` -> `y > bound` -> D2a was the worst path (6.7 ns)
+    d2a = Signal(beat)
+    d2a_valid = _reg(m, go, 1, "d2a_valid")
+    tests = []
+    d2a_cpos = [Signal(_POS, name=f"d2a_cpos{j}") for j in range(L)]  # centre base + j - 1
+    for j in range(L):
+        a, b, c = ev[j], ev[j + 1], ev[j + 2]
+        lane = [_sub_sign(m, a, b, f"d2a_ab{j}"), ~_sub_sign(m, b, c, f"d2a_bc{j}"),
+                kv[j] == kv[j + 2],
+                (Const(j) < d1.count) & ~_sub_sign(m, d1_base, cand_at[j], f"d2a_cand{j}"),
+                _sub_sign(m, dec_bound, b, f"d2a_thr{j}")]
+        tests.append([_reg(m, t, 1, f"d2a_t{j}_{i}") for i, t in enumerate(lane)])
+        m.d.sync += d2a_cpos[j].eq(d1_base + (j - 1))
+    m.d.sync += [d2a.e[j].eq(v) for j, v in enumerate(ev)]
+    m.d.sync += [d2a.ke[j].eq(v) for j, v in enumerate(kv)]
+    m.d.sync += [d2a.base.eq(d1_base), d2a.first.eq(d1.first), d2a.last.eq(d1.last),
+                 d2a.long.eq(d1_needs), d2a.tag.eq(d1_tag)]
+    d2 = _reg(m, d2a, beat, "d2")
+    d2_valid = _reg(m, d2a_valid, 1, "d2_valid")
+    d2_peak = Signal(L)
+    m.d.sync += [d2_peak[j].eq(reduce(and_, tests[j])) for j in range(L)]
+    d2_cpos = [_reg(m, v, _POS, f"d2_cpos{j}") for j, v in enumerate(d2a_cpos)]
+    return d2, d2_valid, d2_peak, d2a_cpos, d2_cpos
+
+
+def _surface(m, surface, L, d2, d2_valid, d2_peak, d2a_cpos, d2_cpos, ms_le):
+    """D3: the surface (first peak of the frame) and its message on ``surface``, lanes
+    eligible as a bottom.
+
+    Returns ``s_found`` (the frame has its surface, through this beat), ``sep_at`` (``s +
+    min_sep``, loaded at D4), ``d3_new`` (the surface's lane, one-hot, if found in the beat
+    at D3) and ``d3_elig`` (per lane: a peak at least ``min_sep`` after the surface).
+    """
+    # The loop carries found and the surface's lane when it was found in one of the two
+    # previous beats; s + min_sep is registered a clock later (D4), compared with the centres
+    # as a beat enters D2 (the compare before the selects in D3's clock was a worst path,
+    # 5.7 ns) and used from the third beat after the surface's on. No
+    # priority chain sits in front of a wide register: "eligible" needs no first-peak
+    # encoder (some peak at i <= j - min_sep exists exactly when the first one does), and the
+    # surface's record and the prefix minimum take the registered one-hot lane.
+    s_found = Signal()
+    s_lane = Signal(L)  # one-hot: the surface was found in the previous beat, in this lane
+    s_lane2 = Signal(L)  # the same for the beat before that
+    sep_at = Signal(_SEP)  # s + min_sep, from the second beat after the surface's on
+    # c >= s + min_sep per lane, for the beat entering D2 (valid from the third beat after
+    # the surface's: sep_at is set the clock after the surface's D3)
+    sep_ok = [_reg(m, ~_sub_sign(m, d2a_cpos[j], sep_at, f"d3_sep{j}"), 1, f"d3_sep{j}")
+              for j in range(L)]
+    found = s_found & ~d2.first
+    pre = [d2_peak[:j + 1].any() for j in range(L)]  # a peak at or before lane j
+    fo = [d2_peak[0]] + [d2_peak[j] & ~pre[j - 1] for j in range(1, L)]  # the first, one-hot
+    new_s = Signal()
+    m.d.comb += new_s.eq(d2_valid & ~found & d2_peak.any())
+    near, near2 = s_lane.any(), s_lane2.any()
+    d3_elig = Signal(L)
+    for j in range(L):
+        sep_new = reduce(or_, [d2_peak[i] & ms_le[j - i] for i in range(j + 1)])
+        sep_near = reduce(or_, [s_lane[i] & ms_le[L + j - i] for i in range(L)])
+        sep_near2 = reduce(or_, [s_lane2[i] & ms_le[2 * L + j - i] for i in range(L)])
+        sep_old = Mux(near, sep_near, Mux(near2, sep_near2, sep_ok[j]))
+        m.d.sync += d3_elig[j].eq(d2_peak[j] & Mux(found, sep_old, sep_new))
+    d3_new = Signal(L)  # the surface's lane, one-hot, if found in this beat
+    m.d.sync += d3_new.eq(Mux(new_s, Const(0, L) | sum(fo[j] << j for j in range(L)), 0))
+    with m.If(d2_valid):
+        m.d.sync += [s_found.eq(found | new_s), s_lane2.eq(s_lane),
+                     s_lane.eq(Mux(new_s, Const(0, L) | sum(fo[j] << j for j in range(L)), 0))]
+    # the surface message, raised at the D3 edge, held until taken; a newer one replaces it
+    with m.If(surface.ready):
+        m.d.sync += surface.valid.eq(0)
+    with m.If(new_s):
+        m.d.sync += [surface.valid.eq(1),
+                     surface.payload.n.eq(reduce(or_, [Mux(fo[j], d2_cpos[j], 0)
+                                                       for j in range(L)])),
+                     surface.payload.tag.eq(d2.tag)]
+    return s_found, sep_at, d3_new, d3_elig
+
+
+def _surface_record(m, L, rec, bd, vd, d3_new, sep_at, s_found, ms_lane):
+    """D4: ``s + min_sep`` and the surface's record; at the frame's last beat, the snapshot
+    for the divider (``s_found`` already holds the frame's final answer). Returns it
+    (``s_fin``)."""
+    with m.If(d3_new.any()):
+        m.d.sync += sep_at.eq(reduce(or_, [Mux(d3_new[j], bd[1].base + ms_lane[j], 0)
+                                           for j in range(L)]))
+    srec, s_fin = Signal(rec), Signal(rec)
+    s_new = Signal(rec)
+    m.d.comb += s_new.eq(reduce(or_, [
+        Mux(d3_new[j], _lane_record(m, rec, bd[1], j, bd[1].base + (j - 1)).as_value(), 0)
+        for j in range(L)]))
+    with m.If(d3_new.any()):
+        m.d.sync += srec.eq(s_new)
+    # The snapshot a clock after the last beat's D4, from srec (which then holds this beat's
+    # surface if it had one; the next frame's surface can land in srec only at that edge):
+    # the choice between the new record, srec and none fanned out to every record bit from
+    # two LUTs was the worst path at two lanes (5.9 ns). The divider loads s_fin much later.
+    s_fin_at = _reg(m, vd[1] & bd[1].last, 1, "s_fin_at")
+    s_fin_found = _reg(m, s_found, 1, "s_fin_found")  # (s_found includes this beat's)
+    with m.If(s_fin_at):
+        m.d.sync += s_fin.eq(Mux(s_fin_found, srec.as_value(), 0))
+    return s_fin
+
+
+def _prefix_minimum(m, L, depth, bd, d3_new):
+    """Rule 2: the minimum of ``y`` from the surface on, across the lanes (``2 depth``
+    clocks from D4). Returns per lane the minimum and whether its segment starts at the
+    surface."""
+    # A segmented prefix minimum (Hillis-Steele, one level per clock): the surface's lane
+    # starts a segment (flag), so lanes from it on see the minimum from the surface only.
+    # Each level takes two clocks, the compares and then the selects (both in one clock were
+    # the worst path at two lanes).
+    pm = [bd[1].e[j + 1] for j in range(L)]
+    seg = [d3_new[j] for j in range(L)]
+    for lev in range(depth):
+        step = 1 << lev
+        take = [_reg(m, seg[j] | _sub_sign(m, pm[j], pm[j - step], f"pmt{lev + 1}_{j}")
+                     if j >= step else 1, 1, f"pmt{lev + 1}_{j}") for j in range(L)]
+        pm_c = [_reg(m, v, _Y, f"pmc{lev + 1}_{j}") for j, v in enumerate(pm)]
+        seg_c = [_reg(m, seg[j] | seg[j - step] if j >= step else seg[j], 1,
+                      f"segc{lev + 1}_{j}") for j in range(L)]
+        pm = [_reg(m, Mux(take[j], pm_c[j], pm_c[j - step]) if j >= step else pm_c[j], _Y,
+                   f"pm{lev + 1}_{j}") for j in range(L)]
+        seg = [_reg(m, f, 1, f"seg{lev + 1}_{j}") for j, f in enumerate(seg_c)]
+    return pm, seg
+
+
+def _running_minimum(m, L, depth, pm, seg, vd):
+    """V: the running minimum carried from beat to beat (two clocks, L and U); returns per
+    lane the minimum of ``y`` from the surface on, registered (``run_min``)."""
+    # The running minimum vmin carried from beat to beat; lanes in the surface's segment do
+    # not take it (it belongs to the frame before the surface). A compare and a select in one
+    # loop clock were the worst path, so the loop takes two: L compares, U selects. Each lane
+    # needs min(vmin, P', pm) with P' the previous beat's minimum: L compares the three pairs
+    # against vmin as it stands (x, kept) and P'; U selects. At L, vmin holds at least every
+    # beat up to two before (U of the beat before may land at the same edge) and P' is the
+    # one before, so the minimum is the one from the surface on either way. Lanes whose
+    # segment starts in this beat take pm, those of the beat after the surface's min(P', pm).
+    p_prev, s_prev = Signal(_Y), Signal()  # P' and whether the surface's segment is in it
+    vmin = Signal(_Y)
+    with m.If(vd[2 * depth + 1]):
+        m.d.sync += [p_prev.eq(pm[-1]), s_prev.eq(seg[-1])]
+    x = _reg(m, vmin, _Y, "vx")
+    pl = _reg(m, p_prev, _Y, "vp")
+    sel = []
+    for j in range(L):
+        # (the compares as subtraction signs: no LUT after the carry chains)
+        pm_lt_p = _reg(m, _sub_sign(m, pm[j], p_prev, f"vc{j}"), 1, f"vc{j}")
+        pm_lt_x = _reg(m, _sub_sign(m, pm[j], vmin, f"va{j}"), 1, f"va{j}")
+        p_lt_x = _reg(m, _sub_sign(m, p_prev, vmin, f"vb{j}"), 1, f"vb{j}")
+        pm_l = _reg(m, pm[j], _Y, f"vpm{j}")
+        seg_l, near = _reg(m, seg[j], 1, f"vs{j}"), _reg(m, s_prev, 1, f"vn{j}")
+        take_pm = seg_l | (pm_lt_p & (near | pm_lt_x))
+        take_p = ~seg_l & ~pm_lt_p & (near | p_lt_x)
+        sel.append(Mux(take_pm, pm_l, Mux(take_p, pl, x)))
+    with m.If(vd[2 * depth + 2]):
+        m.d.sync += vmin.eq(sel[-1])
+    return [_reg(m, sel[j], _Y, f"run_min{j}") for j in range(L)]
+
+
+def _best_lane(m, cfg, L, depth, bd, run_min, elig_v, thr, LA):
+    """R, K and the max-tree: the key per lane, eligible and (rule 2) rising above ``thr``,
+    then the best lane. Returns the tree's root (``ok``, ``key``, ``idx``; registered with the
+    beat at ``bd[4 depth + 6]``, B1) and its layout.
+
+    ``thr`` is the statistics' ``thr`` without the lookahead (capped here, once per frame),
+    the frame's capped ``cur_thr_k`` with it (carried with the beat from D1).
+    """
+    # R: the key per lane; K: eligible and, for rule 2, rising above thr
+    bt = bd[2 * depth + 3]
+    keys = []
+    for j in range(L):
+        b = bt.e[j + 1]
+        keys.append(_reg(m, Mux(cfg.bottom_rule == 0, j,
+                                Mux(cfg.bottom_rule == 1, b, b - run_min[j])), _KEY, f"key{j}"))
+    # (the rise's compare with thr registered on its own: with the AND into ok it was a worst
+    # path)
+    # against thr capped at the largest key, registered once per frame (the 33-bit compare
+    # with the 32-bit thr was the next worst path)
+    if not LA:
+        thr_k = _reg(m, thr_as_key(thr), unsigned(_KEY.width - 1), "thr_k")
+    else:  # the frame's, carried with its beats from D1 (go) to here
+        thr_k = _delay(m, thr, 2 * depth + 6, "la_thr_k")[-1]
+    over = [_reg(m, (cfg.bottom_rule != 2) | _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1,
+                 f"key_over{j}") for j in range(L)]
+    keys = [_reg(m, k, _KEY, f"key_k{j}") for j, k in enumerate(keys)]
+    elig_r = _delay(m, elig_v, 2, "elig_r")[-1]
+    node = data.StructLayout({"ok": 1, "key": _KEY, "idx": range(L)})
+    level = []
+    for j in range(L):
+        nd = Signal(node, name=f"leaf{j}")
+        m.d.sync += [nd.ok.eq(elig_r[j] & over[j]), nd.key.eq(keys[j]), nd.idx.eq(j)]
+        level.append(nd)
+    # the max-tree: the later lane wins only with a larger key (earliest on a tie; rule 0's
+    # key is the lane, so the latest eligible lane wins)
+    # (two clocks a level: the compare, then the select)
+    for lev in range(depth):
+        nxt = []
+        for j in range(0, len(level), 2):
+            nd = Signal(node, name=f"max{lev + 1}_{j // 2}")
+            if j + 1 < len(level):
+                lo, hi = level[j], level[j + 1]
+                gt = _sub_sign(m, lo.key, hi.key, f"maxr{lev + 1}_{j // 2}")
+                right = _reg(m, hi.ok & (~lo.ok | gt), 1, f"maxr{lev + 1}_{j // 2}")
+                lo_c = _reg(m, lo, node, f"maxlo{lev + 1}_{j // 2}")
+                hi_c = _reg(m, hi, node, f"maxhi{lev + 1}_{j // 2}")
+                m.d.sync += nd.eq(Mux(right, hi_c.as_value(), lo_c.as_value()))
+            else:
+                m.d.sync += nd.eq(_reg(m, level[j], node, f"maxc{lev + 1}_{j // 2}"))
+            nxt.append(nd)
+        level = nxt
+    return level[0], node
+
+
+def _bottom(m, cfg, L, rec, bd, vd, win, node):
+    """B1, B2: the bottom against the frame's best so far; C: its record. Returns the
+    frame's bottom record at its last beat (``b_fin``), ``end_valid`` and ``end_long``."""
+    # The loop carries found and the best key; the record follows a clock later (C). A
+    # compare in the loop's clock was a worst path, so B1 compares and B2 decides: B1 sees
+    # best as it stands (at least every beat up to two before: B2 of the beat before may land
+    # at the same edge) and the key of the beat before (pkey). If the beat before took the
+    # best, its key is the best (gt_p); if not, best was already right at B1 (gt_x). When the
+    # beat before is another frame's, this beat is its frame's first and needs no compare.
+    b_found, best, pkey = Signal(), Signal(_KEY), Signal(_KEY)
+    gt_x = _reg(m, _sub_sign(m, best, win.key, "b_gt_x"), 1, "b_gt_x")
+    gt_p = _reg(m, _sub_sign(m, pkey, win.key, "b_gt_p"), 1, "b_gt_p")
+    with m.If(vd[-3]):
+        m.d.sync += pkey.eq(win.key)
+    win = _reg(m, win, node, "win_b2")
+    bt, b_valid = bd[-2], vd[-2]
+    found_b = b_found & ~bt.first
+    take, took_prev = Signal(name="b_take"), Signal(name="b_took_prev")
+    m.d.comb += take.eq(b_valid & win.ok & ((cfg.bottom_rule == 0) | ~found_b
+                                            | Mux(took_prev, gt_p, gt_x)))
+    with m.If(b_valid):
+        m.d.sync += [b_found.eq(found_b | take), took_prev.eq(take)]
+    with m.If(take):
+        m.d.sync += best.eq(win.key)
+    recs = Array(_lane_record(m, rec, bt, j, bt.base + (j - 1)).as_value() for j in range(L))
+    c_take = _reg(m, take, 1, "c_take")
+    c_rec = _reg(m, recs[win.idx], rec, "c_rec")
+    # C: the bottom's record; at the frame's last beat, the snapshot for the divider
+    brec, b_fin = Signal(rec), Signal(rec)
+    end_valid, end_long = Signal(), Signal()
+    with m.If(c_take):
+        m.d.sync += brec.eq(c_rec)
+    m.d.sync += end_valid.eq(0)
+    with m.If(vd[-1] & bd[-1].last):
+        m.d.sync += [b_fin.eq(Mux(c_take, c_rec.as_value(), Mux(b_found, brec.as_value(), 0))),
+                     end_valid.eq(1), end_long.eq(bd[-1].long)]
+    return b_fin, end_valid, end_long

@@ -1,0 +1,252 @@
+"""The peak detector's window statistics: ``mu``, ``noise``, ``thr`` and the decision's bound.
+
+Private part of :class:`hdl.peak_detect.PeakDetect`, built by :func:`window_statistics` for
+:func:`hdl._peak_lanes.elaborate` (whose module docstring describes the whole design). A free
+running pipeline with a valid bit per stage, fed each beat once: from ``D1`` the clock after
+a beat is loaded into it (``fresh``), or with the lookahead from ``E``, the clock after the
+beat is taken into the FIFO. With the
+lookahead the statistics run ahead of the decision, so they are also kept per frame in a queue
+(:func:`_frame_queue`).
+"""
+
+from __future__ import annotations
+
+from functools import reduce
+from operator import or_
+from typing import NamedTuple
+
+from amaranth.hdl import Const, Mux, Signal, Value, signed, unsigned
+from amaranth.lib import data
+
+from model.matched_filter import OUT_WIDTH
+
+from ._peak_common import _QUEUE, thr_as_key
+from ._primitives import _delay, _reg, _Store, _sub_sign, _sum_tree
+from .matched_filter import TAG_WIDTH, RegisteredMultiplier
+from .peak_detect import _KEY, _P_MAX_LOG2, _Y, NOISE_MAX, NOISE_WIDTH, THR_WIDTH
+
+__all__ = ["WindowStats", "Windows", "window_statistics"]
+
+_Y_HI = (1 << (OUT_WIDTH - 1)) - 1
+_LO_BITS = 17  # noise splits into 17 + 7 bits for two 18 x 18 multipliers
+
+
+class Windows(NamedTuple):
+    """The window bounds per lane ``j``, each minus ``j`` (``signed(_POS.width + 1)``
+    registers), so that "sample ``base + j`` at or past ``X``" is one compare of the base."""
+
+    mu_lo: list  #: ``W``: the baseline window's first sample
+    mu_hi: list  #: ``W + P``: past the baseline window, the noise window's first sample
+    dev_hi: list  #: ``W + 2P``: past the noise window
+    mu_end: list  #: ``W + P - 1``: the baseline window's last sample
+    dev_end: list  #: ``W + 2P - 1``: the noise window's last sample
+
+
+class WindowStats(NamedTuple):
+    """What the decision and the frame end read of the statistics."""
+
+    mu: Signal  #: ``_Y``: the latest closed baseline window's mean
+    noise: Signal  #: ``NOISE_WIDTH``: the latest closed noise window's mean ``|y - mu|``
+    thr: Signal  #: ``THR_WIDTH``: ``max(min_thr, (k_thr_q4 * noise) >> 4)``
+    #: ``_Y``: the decision's bound ``min(mu + thr, _Y_HI)`` (``y - mu > thr`` is ``y > bound``):
+    #: the register without the lookahead, ``cur.bound`` with it
+    bound: Value
+    #: With the lookahead, a frame's statistics (``mu``, ``noise``, ``thr``, ``bound``) from
+    #: the queue's head: D1's frame's once ``stats_ok`` let its beat go; ``None`` without
+    cur: Signal | None
+    #: With the lookahead, ``cur.thr`` capped at the largest key (:func:`thr_as_key`); ``None``
+    #: without
+    cur_thr_k: Signal | None
+
+
+def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_tag, st_valid,
+                      e_push, windows, window_shift, thr_tag, q_pop, stats_ok) -> WindowStats:
+    """Build the window statistics into ``m``.
+
+    Parameters
+    ----------
+    m : Module
+    cfg : the ``peak`` registers
+        ``k_thr_q4`` and ``min_thr`` are read here (``noise_log2`` through ``window_shift``).
+    lanes, levels, lookahead : int
+        Samples per beat ``L``, ``ceil(log2 L)`` and the lookahead ``D`` in beats (0: none).
+    st_beat, st_base, st_tag, st_valid
+        The beat at the input (``L`` samples ``y``, ``count``, ``first``), its first sample's
+        place in the frame (``_POS``), its frame's tag and its valid bit: one clock per beat.
+    e_push : Signal or None
+        With the lookahead, the beat is its frame's first that needs the threshold: its
+        statistics are written to the queue.
+    windows : Windows
+        The window bounds per lane.
+    window_shift : callable
+        ``value >> noise_log2`` (an AND-OR of shifted copies).
+    thr_tag : Signal or None
+        Without the lookahead, the register loaded with the frame tag of the beat whose
+        ``bound`` is being loaded (``TAG_WIDTH + 1`` bits; D1 waits for its frame's).
+    q_pop, stats_ok : Signal or None
+        With the lookahead: D1's frame leaves (its last beat's ``go``: the next entry goes to
+        ``cur``), and the flag driven here: ``cur`` holds D1's next beat's frame.
+
+    Returns
+    -------
+    WindowStats
+
+    Notes
+    -----
+    Latency in clocks, ``d = levels``, from the clock a beat is at the input (``st_valid``)
+    to the first clock a register holds what it brought: a frame's ``mu`` is registered
+    ``4 + d`` clocks after the beat closing its baseline window, its ``noise`` ``9 + 2d``,
+    ``thr`` ``13 + 2d`` and ``bound`` (with ``thr_tag``) ``15 + 2d`` clocks after the beat
+    closing its noise window (``THRESHOLD_BUBBLE - 1 + 2d``; D1's registered ``go`` adds the
+    bubble's last clock). With the lookahead, the entry of the frame's first beat that needs
+    the threshold is written in the clock after its ``bound`` is registered (``15 + 2d``
+    after that beat; by then its noise window has closed), is at the queue's output three
+    clocks later (``stats_ok`` when ``cur`` is free: ``18 + 2d``) and in ``cur`` a clock
+    after that.
+    """
+    L, LA, depth = lanes, lookahead, levels
+    mu_lo, mu_hi, dev_hi, mu_end, dev_end = windows
+    # S0: the window flags per lane, from the beat's base (a lane holds sample base + j; lanes
+    # at or past count are empty); S1: the masked samples. Compares and the mask in one clock
+    # were a worst path.
+    side = data.StructLayout({"valid": 1, "first": 1, "close_mu": 1, "close_dev": 1,
+                              "tag": TAG_WIDTH, **({"push": 1} if LA else {})})
+    s0, s1 = Signal(side), Signal(side)
+    s0_y = Signal(data.ArrayLayout(_Y, L))
+    s0_mu, s0_dev = Signal(L), Signal(L)
+    s1_mu = [Signal(_Y, name=f"s1_mu{j}") for j in range(L)]
+    s1_y = Signal(data.ArrayLayout(_Y, L))
+    s1_dev = Signal(L)
+    close_mu, close_dev = [], []
+    for j in range(L):
+        used = Const(j) < st_beat.count
+        # (position compares as subtraction signs, here and below: as compares they left
+        # the carry out of the chain to an extra cell and a LUT, a worst path)
+        past_lo = ~_sub_sign(m, st_base, mu_lo[j], f"s0_lo{j}")
+        past_hi = ~_sub_sign(m, st_base, mu_hi[j], f"s0_hi{j}")
+        before_end = _sub_sign(m, st_base, dev_hi[j], f"s0_end{j}")
+        m.d.sync += [s0_mu[j].eq(used & past_lo & ~past_hi),
+                     s0_dev[j].eq(used & past_hi & before_end)]
+        # "at the window's last sample" as at or past it and not past the window (equalities
+        # of the base were a tree of four LUTs, a worst path)
+        close_mu.append(used & ~_sub_sign(m, st_base, mu_end[j], f"s0_mu_end{j}") & ~past_hi)
+        close_dev.append(used & ~_sub_sign(m, st_base, dev_end[j], f"s0_dev_end{j}")
+                         & before_end)
+    m.d.sync += [s0_y.eq(st_beat.y), s0.valid.eq(st_valid), s0.first.eq(st_beat.first),
+                 s0.close_mu.eq(reduce(or_, close_mu)), s0.close_dev.eq(reduce(or_, close_dev)),
+                 s0.tag.eq(st_tag)]
+    if LA:
+        m.d.sync += s0.push.eq(e_push)
+    m.d.sync += [s1_mu[j].eq(Mux(s0_mu[j], s0_y[j], 0)) for j in range(L)]
+    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), s1.eq(s0)]
+    # the baseline tree, its running sum, then mu
+    mu_tree = _sum_tree(m, s1_mu, "mu_tree")
+    sd = _delay(m, s1, depth + 3, "side")  # sd[i]: the side band i clocks after S1
+    mu_sum = Signal(signed(OUT_WIDTH + _P_MAX_LOG2))
+    mu = Signal(_Y)
+    t = sd[depth]
+    with m.If(t.valid):
+        m.d.sync += mu_sum.eq(Mux(t.first, 0, mu_sum) + mu_tree)
+    with m.If(sd[depth + 1].valid & sd[depth + 1].close_mu):
+        m.d.sync += mu.eq(window_shift(mu_sum))
+    # |y - mu| on the noise lanes, the clock after mu is registered for the closing beat
+    dy = _delay(m, s1_y, depth + 2, "dev_y")[-1]
+    dm = _delay(m, s1_dev, depth + 2, "dev_m")[-1]
+    devs = []
+    for j in range(L):
+        # y - mu, then its magnitude a clock later (a subtract, a compare and a negation in one
+        # clock were a worst path)
+        diff = _reg(m, Mux(dm[j], dy[j] - mu, 0), signed(OUT_WIDTH + 1), f"dev_diff{j}")
+        devs.append(_reg(m, Mux(diff < 0, -diff, diff), unsigned(OUT_WIDTH + 1), f"dev{j}"))
+    dev_tree = _sum_tree(m, devs, "dev_tree")
+    sd2 = _delay(m, sd[depth + 3], depth + 1, "side_dev")
+    t = sd2[depth + 1]  # the side band of the beat at the dev tree's root
+    dev_sum = Signal(unsigned(OUT_WIDTH + 1 + _P_MAX_LOG2))
+    with m.If(t.valid):
+        m.d.sync += dev_sum.eq(Mux(t.first, 0, dev_sum) + dev_tree)
+    t_dev = t
+    dev_closed = _reg(m, t.valid & t.close_dev, 1, "dev_closed")
+    dev_tag = _reg(m, t.tag, TAG_WIDTH, "dev_tag")
+    # noise = min(dev_sum >> noise_log2, NOISE_MAX): the shift, then a clock later the
+    # register the threshold reads. The cap never bites here: y and mu are s24, so each of
+    # the P terms |y - mu| is at most 2^24 - 1 = NOISE_MAX, and so is their mean (the cap, as
+    # a compare or as an OR of the high bits and a mux, was a worst path). The
+    # other caps are bit tests where the bound is a power of two less one, and signs of
+    # subtractions where it is a register.
+    assert NOISE_MAX == (1 << OUT_WIDTH) - 1 == (1 << NOISE_WIDTH) - 1
+    noise = Signal(NOISE_WIDTH)
+    noise_full = _reg(m, window_shift(dev_sum), unsigned(NOISE_WIDTH), "noise_full")
+    full_new = _reg(m, dev_closed, 1, "noise_full_new")
+    with m.If(full_new):
+        m.d.sync += noise.eq(noise_full)
+    noise_new = _reg(m, full_new, 1, "noise_new")
+    noise_tag = _delay(m, dev_tag, 2, "noise_tag")[-1]
+    # k_thr_q4 * noise: the DSP blocks' own registers, two clocks, then the partial sum
+    k_shape_s = signed(len(cfg.k_thr_q4) + 1)
+    mul_lo = m.submodules.thr_mul_lo = RegisteredMultiplier(k_shape_s, signed(_LO_BITS + 1))
+    mul_hi = m.submodules.thr_mul_hi = RegisteredMultiplier(
+        k_shape_s, signed(NOISE_WIDTH - _LO_BITS + 1))
+    m.d.comb += [mul_lo.a.eq(cfg.k_thr_q4), mul_lo.b.eq(noise[:_LO_BITS]), mul_lo.ce.eq(1),
+                 mul_hi.a.eq(cfg.k_thr_q4), mul_hi.b.eq(noise[_LO_BITS:]), mul_hi.ce.eq(1)]
+    prod = _reg(m, mul_lo.p + (mul_hi.p << _LO_BITS),
+                unsigned(len(cfg.k_thr_q4) + NOISE_WIDTH), "prod")
+    prod_new = _delay(m, noise_new, 3, "prod_new")[-1]
+    prod_tag = _delay(m, noise_tag, 3, "prod_tag")[-1]
+    thr = Signal(THR_WIDTH)
+    with m.If(prod_new):
+        prod_thr = prod >> 4
+        m.d.sync += thr.eq(Mux(_sub_sign(m, cfg.min_thr, prod_thr, "thr_floor"), prod_thr,
+                               cfg.min_thr))
+    # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
+    # each lane makes one 24-bit compare
+    # (the sum, then the cap a clock later)
+    bound = Signal(_Y)
+    # (with the lookahead, mu as the beat at this stage saw it: a later frame's mu may have
+    # been registered meanwhile)
+    mu_at = _delay(m, mu, depth + 11, "la_mu") if LA else [mu]
+    total = _reg(m, mu_at[depth + 9 if LA else 0] + thr,
+                 signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1), "bound_total")
+    total_new = _delay(m, prod_new, 2, "bound_new")[-1]
+    total_tag = _delay(m, prod_tag, 2, "bound_tag")[-1]
+    with m.If(total_new):
+        # (total > _Y_HI: not negative, and a bit at or above the sign of y set)
+        over = ~total[-1] & total[OUT_WIDTH - 1:-1].any()
+        m.d.sync += bound.eq(Mux(over, _Y_HI, total))
+        if not LA:
+            m.d.sync += thr_tag.eq(total_tag)
+    if not LA:
+        return WindowStats(mu, noise, thr, bound, None, None)
+    cur, cur_thr_k = _frame_queue(m, t_dev, mu_at, noise, thr, bound, q_pop, stats_ok)
+    return WindowStats(mu, noise, thr, cur.bound, cur, cur_thr_k)
+
+
+def _frame_queue(m, t_dev, mu_at, noise, thr, bound, q_pop, stats_ok):
+    """The lookahead's queue of per-frame statistics (``_QUEUE`` entries); returns ``(cur,
+    cur_thr_k)``.
+
+    ``t_dev`` is the side band at the noise tree's root (its ``push``), ``mu_at`` the delay
+    line of ``mu``; ``q_pop`` and ``stats_ok`` as in :func:`window_statistics`.
+    """
+    # The queue of per-frame statistics: a frame's entry is written when its first beat
+    # that needs the threshold (push) is at this stage, the clock after bound is
+    # registered; by then its noise window has closed (at or before that beat), and every
+    # value is taken as that beat saw it at its own stage (delayed copies), so frames
+    # following each other closely in the pipeline keep their own statistics. D1 takes
+    # them from ``cur``, loaded from the queue's head (a register) when free or as the
+    # frame using it leaves (its last beat's go).
+    push_at = _delay(m, _reg(m, t_dev.valid & t_dev.push, 1, "la_push0"), 8, "la_push")[-1]
+    qrec = data.StructLayout({"mu": _Y, "noise": NOISE_WIDTH, "thr": THR_WIDTH, "bound": _Y})
+    q = m.submodules.la_stats = _Store(qrec.size, _QUEUE)
+    entry = Signal(qrec, name="la_entry")
+    m.d.comb += [entry.mu.eq(mu_at[-1]), entry.noise.eq(_delay(m, noise, 6, "la_noise")[-1]),
+                 entry.thr.eq(_delay(m, thr, 2, "la_thr")[-1]), entry.bound.eq(bound),
+                 q.w_data.eq(entry), q.w_en.eq(push_at), q.w_keep.eq(push_at)]
+    cur, cur_valid = Signal(qrec, name="la_cur"), Signal(name="la_cur_valid")
+    cur_thr_k = Signal(unsigned(_KEY.width - 1), name="la_cur_thr_k")
+    head = Signal(qrec, name="la_head")
+    cur_load = ~cur_valid | q_pop
+    m.d.comb += [head.eq(q.r.payload), q.r.ready.eq(cur_load),
+                 stats_ok.eq(Mux(cur_load, q.r.valid, cur_valid))]
+    with m.If(cur_load):
+        m.d.sync += [cur.eq(head), cur_valid.eq(q.r.valid), cur_thr_k.eq(thr_as_key(head.thr))]
+    return cur, cur_thr_k
