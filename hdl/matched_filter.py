@@ -31,7 +31,7 @@ from amaranth.lib.wiring import In, Out
 from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
-from ._primitives import _le
+from ._primitives import _le, _output_buffer
 from .layouts import STITCHED, config_signature
 
 __all__ = [
@@ -270,66 +270,6 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
         m.d.sync += [t.eq((acc << 1) >> sh), over.eq(acc >= over_at),
                      under.eq(acc < under_at)]
     m.d.sync += y.eq(Mux(over, _Y_HI, Mux(under, _Y_LO, t_low[1:])))
-
-
-def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take):
-    """The output buffer of ``capacity`` beats behind the pipeline's last stage ``pipe``: a
-    FIFO in LUT RAM (``capacity`` rounded up to a power of two) whose head is also kept in a
-    register, bypassed when empty. ``o.payload`` is the head register or ``pipe`` (a mux of
-    two registers), ``o.valid`` a register.
-
-    The caller guarantees that fewer than ``capacity`` beats are held whenever ``pipe_valid``
-    is high (the pipeline's beat counts against the same admission bound).
-    """
-    # The buffer was 16 register entries that moved down one at every pop, each entry's
-    # select made from the `o` handshake: the pipeline's `valid` -> push/pop -> the selects of
-    # 16 x 30 bits was the worst path (5.9 ns, 4.3 of it routing). Now every write is made
-    # from registers only: the pipeline's beat is written at `w_ptr` whenever it is valid,
-    # and the handshake only decides whether `w_ptr` moves on (whether the beat is kept; one
-    # taken by the bypass is left in a free slot, to be overwritten). The slot at `w_ptr` is
-    # free whenever `pipe_valid` is high, by the caller's bound. The handshake drives two
-    # 4-bit pointers and the count, not the data.
-    # The head is a register (`head`, a copy of the entry at `r_ptr`), refilled at a pop from
-    # the entry after it, read from the RAM at `r_next` (a register, r_ptr + 1), or from the
-    # pipeline's beat when that is the one that follows. Read at `r_ptr` as the payload, the
-    # RAM's output went on through the pipeline's fork into the detector's decision register:
-    # the pipeline's worst path (6.57 ns, 4.7 of it routing).
-    size = 1 << max(1, (capacity - 1).bit_length())
-    ram = memory.Memory(shape=pipe.shape(), depth=size, init=[])
-    m.submodules.obuf = ram
-    wp = ram.write_port()
-    rp = ram.read_port(domain="comb")
-    w_ptr, r_next = Signal(range(size)), Signal(range(size), init=1)
-    head = Signal.like(pipe, name="obuf_head")
-    held = Signal(range(capacity + 1))  # entries in use
-    any_held = Signal()  # held != 0
-    m.d.comb += [
-        wp.addr.eq(w_ptr), wp.data.eq(pipe), wp.en.eq(pipe_valid),
-        rp.addr.eq(r_next),
-        o.valid.eq(any_held | pipe_valid),
-        o.payload.eq(Mux(any_held, head, pipe)),
-    ]
-    pop = take & any_held  # the head leaves
-    push = pipe_valid & ~(take & ~any_held)  # the pipeline's beat is kept
-    # No arithmetic after the handshake: the count is decoded from its register, and the
-    # handshake only chooses between decoded flags and values made from the registers.
-    held_is0, held_is1 = Signal(), Signal()
-    m.d.comb += [held_is0.eq(held == 0), held_is1.eq(held == 1)]
-    w_up, r_up = Signal.like(w_ptr), Signal.like(r_next)
-    held_up, held_down = Signal.like(held), Signal.like(held)
-    m.d.comb += [w_up.eq(w_ptr + 1), r_up.eq(r_next + 1),
-                 held_up.eq(held + 1), held_down.eq(held - 1)]
-    # The head after this clock: the entry after it at a pop (in the RAM when two or more are
-    # held, else the pipeline's beat, kept by this push), the pipeline's beat when the buffer
-    # is empty (kept or not: unused then), else unchanged.
-    m.d.sync += head.eq(Mux(held_is0 | (pop & held_is1), pipe,
-                            Mux(pop, rp.data, head)))
-    m.d.sync += [
-        w_ptr.eq(Mux(push, w_up, w_ptr)),
-        r_next.eq(Mux(pop, r_up, r_next)),
-        held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
-        any_held.eq(push | (~held_is0 & ~held_is1) | (held_is1 & ~pop)),
-    ]
 
 
 def _coef_chain(m: Module, coef, groups: int):

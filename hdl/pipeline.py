@@ -205,9 +205,10 @@ class Pipeline(wiring.Component):
         m.submodules.gate = gate = Gate(depth=self.gate_depth)
         m.submodules.detect = fd = FilterDetect()
         m.submodules.pack = pk = FramePacketizer(self.fifo_bytes, self.max_samples)
-        # Side FIFOs: one entry per sample a stage can hold, plus two so that the fork never
-        # waits on them in steady flow.
-        ev = m.submodules.beside_stitch = _SideFIFO(ADC_IN.size, stitch.LATENCY + 2)
+        # Side FIFOs, each written as its stage accepts a sample and read as the sample leaves
+        # it, so they hold what the stage holds (its CAPACITY); one entry more, and a write
+        # never finds them full.
+        ev = m.submodules.beside_stitch = _SideFIFO(ADC_IN.size, stitch.CAPACITY + 1)
         # (beside the filter: written as the filter accepts, so it holds at most the filter's
         # CAPACITY; one entry more, and a write never finds it full)
         cx = m.submodules.beside_filter = _SideFIFO(_BESIDE_FILTER.size,
