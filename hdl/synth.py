@@ -146,7 +146,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
               DEVICE["package"], "--json", f"{name}.json", "--freq", str(target_mhz),
               "--out-of-context", "--timing-allow-fail", "--seed", "1",
-              "--router", router, "--report", "report.json"], wd, f"nextpnr-ecp5 on {name}")
+              "--router", router, "--report", "report.json",
+              # (the log as it runs: a long place-and-route can be watched in work_dir)
+              "--log", "nextpnr.log"], wd, f"nextpnr-ecp5 on {name}")
         report = json.loads((wd / "report.json").read_text())
     util = {k: v["used"] for k, v in report.get("utilization", {}).items()}
     fmax = [v["achieved"] for v in report.get("fmax", {}).values()]

@@ -18,6 +18,7 @@ class TestSynth:
         assert abs(r["samples_per_s"] - r["fmax_mhz"] * 1e6) < 1e5  # one lane
         assert (tmp_path / "report.json").exists() and (tmp_path / "albcap_stitch.v").exists()
         assert r["router"] == "router1"
+        assert "Max frequency" in (tmp_path / "nextpnr.log").read_text()
 
     def test_command_json(self, capsys, tmp_path):
         out = tmp_path / "fpga.json"
