@@ -57,10 +57,15 @@ class WindowStats(NamedTuple):
     #: With the lookahead, ``cur.thr`` capped at the largest key (:func:`thr_as_key`); ``None``
     #: without
     cur_thr_k: Signal | None
+    #: Without the lookahead, high in the clock before ``bound`` is loaded with a frame's
+    #: (at that clock's edge), and that frame's tag (``TAG_WIDTH``): D1's tag match is kept
+    #: from them a clock ahead. ``None`` with the lookahead
+    bound_new: Signal | None = None
+    bound_tag: Signal | None = None
 
 
 def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_tag, st_valid,
-                      e_push, windows, window_shift, thr_tag, q_pop, stats_ok) -> WindowStats:
+                      e_push, windows, window_shift, q_pop, stats_ok) -> WindowStats:
     """Build the window statistics into ``m``.
 
     Parameters
@@ -80,9 +85,6 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         The window bounds per lane.
     window_shift : callable
         ``value >> noise_log2`` (an AND-OR of shifted copies).
-    thr_tag : Signal or None
-        Without the lookahead, the register loaded with the frame tag of the beat whose
-        ``bound`` is being loaded (``TAG_WIDTH + 1`` bits; D1 waits for its frame's).
     q_pop, stats_ok : Signal or None
         With the lookahead: D1's frame leaves (its last beat's ``go``: the next entry goes to
         ``cur``), and the flag driven here: ``cur`` holds D1's next beat's frame.
@@ -96,7 +98,7 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     Latency in clocks, ``d = levels``, from the clock a beat is at the input (``st_valid``)
     to the first clock a register holds what it brought: a frame's ``mu`` is registered
     ``4 + d`` clocks after the beat closing its baseline window, its ``noise`` ``9 + 2d``,
-    ``thr`` ``13 + 2d`` and ``bound`` (with ``thr_tag``) ``15 + 2d`` clocks after the beat
+    ``thr`` ``13 + 2d`` and ``bound`` ``15 + 2d`` clocks after the beat
     closing its noise window (``THRESHOLD_BUBBLE - 1 + 2d``; D1's registered ``go`` adds the
     bubble's last clock). With the lookahead, the entry of the frame's first beat that needs
     the threshold is written in the clock after its ``bound`` is registered (``15 + 2d``
@@ -212,10 +214,8 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         # (total > _Y_HI: not negative, and a bit at or above the sign of y set)
         over = ~total[-1] & total[OUT_WIDTH - 1:-1].any()
         m.d.sync += bound.eq(Mux(over, _Y_HI, total))
-        if not LA:
-            m.d.sync += thr_tag.eq(total_tag)
     if not LA:
-        return WindowStats(mu, noise, thr, bound, None, None)
+        return WindowStats(mu, noise, thr, bound, None, None, total_new, total_tag)
     cur, cur_thr_k = _frame_queue(m, t_dev, mu_at, noise, thr, bound, q_pop, stats_ok)
     return WindowStats(mu, noise, thr, cur.bound, cur, cur_thr_k)
 
