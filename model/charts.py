@@ -46,6 +46,9 @@ def _plt():
     import matplotlib
 
     matplotlib.use("Agg")  # no display: charts are files
+    # fixed ids in the SVGs (clip paths, markers): random ones made every file differ at
+    # every run, unchanged data or not
+    matplotlib.rcParams["svg.hashsalt"] = "albcap"
     import matplotlib.pyplot as plt
 
     return plt
