@@ -28,7 +28,7 @@ from amaranth.lib.wiring import In, Out
 
 from model.stitch import CODE_MAX, RATIO_FRAC, STITCH_WIDTH
 
-from ._primitives import _output_buffer
+from ._primitives import _output_buffer, _step
 from .layouts import CODES, STITCHED, config_signature
 from .matched_filter import RegisteredMultiplier
 
@@ -102,7 +102,7 @@ class Stitch(wiring.Component):
                      take.eq(self.o.valid & self.o.ready)]
         at_cap, below_cap = inside == CAPACITY, inside == CAPACITY - 1
         m.d.sync += [
-            inside.eq(Mux(accept, Mux(take, inside, inside + 1), Mux(take, inside - 1, inside))),
+            inside.eq(_step(inside, accept, take)),
             full.eq(~take & (at_cap | (below_cap & accept))),
         ]
 
