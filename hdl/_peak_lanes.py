@@ -346,7 +346,7 @@ def elaborate(top, platform):
                           & (~nxt.beat.last | ~busy_nx))
         st_beat, st_base, st_tag, st_valid = e.beat, e.base, e.tag, e_valid
 
-    # ---- window statistics (hdl._peak_stats): they load thr_tag, or drive stats_ok ----
+    # ---- window statistics (hdl._peak_stats): they give bound's loads, or drive stats_ok ----
     stats = window_statistics(
         m, cfg, lanes=L, levels=depth, lookahead=LA, st_beat=st_beat, st_base=st_base,
         st_tag=st_tag, st_valid=st_valid, e_push=e_push if LA else None,

@@ -209,8 +209,8 @@ class Pipeline(wiring.Component):
         # it, so they hold what the stage holds (its CAPACITY); one entry more, and a write
         # never finds them full.
         ev = m.submodules.beside_stitch = _SideFIFO(ADC_IN.size, stitch.CAPACITY + 1)
-        # (beside the filter: written as the filter accepts, so it holds at most the filter's
-        # CAPACITY; one entry more, and a write never finds it full)
+        # (beside the filter: written the clock after the filter accepts, so it holds at most
+        # the filter's CAPACITY; one entry more, and a write never finds it full)
         cx = m.submodules.beside_filter = _SideFIFO(_BESIDE_FILTER.size,
                                                     matched_filter.CAPACITY + 1)
 
@@ -268,8 +268,8 @@ class Pipeline(wiring.Component):
         # the filter's input handshake -> its surface state, 7.5 ns, 132.8 MHz). A frame is
         # inside from the clock its first sample passes the hold (into this slice), so the
         # bank cannot change under a frame waiting here. The codes ride in the slice and enter
-        # the side FIFO as the filter accepts the sample: the side FIFO then holds exactly the
-        # samples inside the filter, at most its LATENCY + 1 (the filter admits no more), so
+        # the side FIFO the clock after the filter accepts the sample (below): the side FIFO
+        # then holds at most the samples inside the filter, LATENCY + 1 (it admits no more), so
         # with CAPACITY + 1 entries it always has room and its w_rdy need gate nothing (written
         # at the hold, through it, it was the worst path after that: 6.4 ns, 155.5 MHz).
         fs = m.submodules.filter_slice = register_slice(_FILTER_SLICE.size)
