@@ -35,9 +35,14 @@ class GpgLM(PeaksFloat):
 
     Steps: the peaks of :class:`~model.methods.peaks_float.PeaksFloat` (surface = largest,
     bottom = latest; only waveforms with a bottom are fitted, as in seed 000); then per
-    waveform a nonlinear least-squares fit of eq. 2 by Levenberg-Marquardt
-    (``scipy.optimize.least_squares(method="lm")``) over the window from 6 surface widths
-    before the surface to 8 bottom widths after the bottom, times in samples.
+    waveform a nonlinear least-squares fit of eq. 2 by Levenberg-Marquardt over the window
+    from 6 surface widths before the surface to 8 bottom widths after the bottom, times in
+    samples. The Levenberg-Marquardt is Moré's trust-region form, as in MINPACK, with its
+    step from one SVD of the Jacobian: ``scipy.optimize.least_squares(method="trf")`` without
+    bounds (``scipy.optimize._lsq.common.solve_lsq_trust_region``). ``method="lm"``, SciPy's
+    C port of MINPACK since 1.15, gave different bits run after run on the same waveform
+    (heap-dependent rounding inside it; ill-conditioned shallow fits then end apart), which
+    no seed can pin; this one gives the same bits every time (``tests/test_methods.py``).
 
     Initial values, seed 000 Table 3 with ``T_0`` the received pulse's FWHM:
     ``s_s = T_0 / sqrt(8 ln 2)``, ``s_b = T_0 / sqrt(2 ln 2)``, ``a = mu_s + 2 s_s``,
@@ -61,7 +66,8 @@ class GpgLM(PeaksFloat):
 
     Units: codes in, seconds and metres out. Float, not bit-exact; one to three fits per
     waveform (the slowest method but EEMD). Flags (no start passed): the fit did not converge
-    (``max_nfev = 200``); ``mu_s`` or ``mu_b`` outside the window or more than 4 pulse sigmas
+    (``max_nfev = 200`` evaluations, the Jacobian's finite differences not counted); ``mu_s``
+    or ``mu_b`` outside the window or more than 4 pulse sigmas
     from the picked peak; ``A_s <= 0``; ``A_b`` below 3 noise deviations; ``s_b`` outside
     0.3..10 x its Table 3 value; then bottom not 6 ns after the surface. (Pentagon corners
     that cross during the fit are not flagged: the pentagon only models the column under the
@@ -134,7 +140,7 @@ class GpgLM(PeaksFloat):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
-                    f = least_squares(resid, start, method="lm", x_scale="jac",
+                    f = least_squares(resid, start, method="trf", x_scale="jac",
                                       max_nfev=self.max_nfev)
                 except (ValueError, np.linalg.LinAlgError):
                     continue
