@@ -37,6 +37,15 @@ def _step(count, up, down):
     return Mux(up, Mux(down, count, count + 1), Mux(down, count - 1, count))
 
 
+def _fills(at_cap, below_cap, up, down):
+    """``count + up - down == cap`` from the count's decoded flags ``at_cap`` (``count ==
+    cap``) and ``below_cap`` (``count == cap - 1``), for a count of an admission that never
+    exceeds ``cap`` (``up`` is never high at ``cap``): it reaches ``cap`` exactly when nothing
+    leaves and it was at ``cap``, or one below with one in. One LUT after the flags, no carry
+    chain: the admission's ``full`` register of the free-running stitch and filter."""
+    return ~down & (at_cap | (below_cap & up))
+
+
 def _room(count, cap, up, down):
     """``count + up - down <= cap - 1`` (one-bit ``up``, ``down``; ``count <= cap``): the
     counter's compares with constants, then one LUT with the moves."""

@@ -28,7 +28,7 @@ from amaranth.lib.wiring import In, Out
 
 from model.stitch import CODE_MAX, RATIO_FRAC, STITCH_WIDTH
 
-from ._primitives import _output_buffer, _step
+from ._primitives import _fills, _output_buffer, _step
 from .layouts import CODES, STITCHED, config_signature
 from .matched_filter import RegisteredMultiplier
 
@@ -103,7 +103,7 @@ class Stitch(wiring.Component):
         at_cap, below_cap = inside == CAPACITY, inside == CAPACITY - 1
         m.d.sync += [
             inside.eq(_step(inside, accept, take)),
-            full.eq(~take & (at_cap | (below_cap & accept))),
+            full.eq(_fills(at_cap, below_cap, accept, take)),
         ]
 
         # Stage 1: channel selection and multiplier operands.

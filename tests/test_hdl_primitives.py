@@ -6,6 +6,8 @@ conditions, a state with two exits, a state left at once, a state that waits, an
 register written in a state block. Both get the same seeded random inputs; the state and
 the register must agree at every clock, and exactly one flag must be high.
 (``_Store``, the other primitive with state, is tested in ``tests/test_hdl_bram.py``.)
+The admission counters' helpers (``_step``, ``_room``, ``_fills``) are checked against plain
+arithmetic for every count and move.
 """
 
 from __future__ import annotations
@@ -111,3 +113,37 @@ def test_refusals():
     with pytest.raises(RuntimeError, match=r"after close$"):
         with fsm.state("B"):
             pass
+
+
+@pytest.mark.parametrize("cap", [1, 2, 3, 16, 17])
+def test_admission_counter_helpers(cap):
+    """``_step``, ``_room`` and ``_fills`` against plain arithmetic, for every count of an
+    admission bounded by ``cap`` and every move it can make (no beat in at ``cap``)."""
+    from hdl._primitives import _fills, _room, _step
+
+    m = Module()
+    count, up, down = Signal(range(cap + 1)), Signal(), Signal()
+    step, room, fills = Signal.like(count), Signal(), Signal()
+    m.d.comb += [step.eq(_step(count, up, down)), room.eq(_room(count, cap, up, down)),
+                 fills.eq(_fills(count == cap, count == cap - 1, up, down))]
+    sim = Simulator(m)
+    seen = []
+
+    async def bench(ctx):
+        for c in range(cap + 1):
+            for u in (0, 1):
+                for d in (0, 1):
+                    if (u and c == cap) or (d and not u and c == 0):
+                        continue  # a full admission takes no beat; an empty one gives none
+                    ctx.set(count, c)
+                    ctx.set(up, u)
+                    ctx.set(down, d)
+                    nxt = c + u - d
+                    assert ctx.get(step) == nxt, (c, u, d)
+                    assert ctx.get(room) == (nxt <= cap - 1), (c, u, d)
+                    assert ctx.get(fills) == (nxt == cap), (c, u, d)
+                    seen.append((c, u, d))
+
+    sim.add_testbench(bench)
+    sim.run()
+    assert len(seen) == 4 * (cap + 1) - 2 - 1  # every state and move but the two excluded
