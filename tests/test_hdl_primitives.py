@@ -18,7 +18,7 @@ import pytest
 from amaranth.hdl import Elaboratable, Module, Signal
 from amaranth.sim import Simulator
 
-from hdl._primitives import OneHotFSM
+from hdl._primitives import OneHotFSM, _fills, _room, _step
 
 STATES = ("IDLE", "LOAD", "RUN", "DONE")
 
@@ -119,8 +119,6 @@ def test_refusals():
 def test_admission_counter_helpers(cap):
     """``_step``, ``_room`` and ``_fills`` against plain arithmetic, for every count of an
     admission bounded by ``cap`` and every move it can make (no beat in at ``cap``)."""
-    from hdl._primitives import _fills, _room, _step
-
     m = Module()
     count, up, down = Signal(range(cap + 1)), Signal(), Signal()
     step, room, fills = Signal.like(count), Signal(), Signal()
