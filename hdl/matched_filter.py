@@ -31,7 +31,7 @@ from amaranth.lib.wiring import In, Out
 from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
-from ._primitives import _fills, _le, _output_buffer
+from ._primitives import _fills, _le, _output_buffer, _step
 from .layouts import STITCHED, config_signature
 
 __all__ = [
@@ -171,13 +171,10 @@ def _flow_control(m: Module, c, capacity: int, hold_nx=None, decoded: bool = Fal
     if decoded:
         # inflight + accept - take never exceeds capacity, and no beat is accepted while
         # inflight = capacity (`full` is high then): `_fills`. The two flags and the
-        # count's steps are made from the register alone.
+        # count's steps (`_step`) are made from the register alone.
         at_cap, below_cap = Signal(), Signal()
         m.d.comb += [at_cap.eq(inflight == capacity), below_cap.eq(inflight == capacity - 1)]
-        inflight_up, inflight_down = Signal.like(inflight), Signal.like(inflight)
-        m.d.comb += [inflight_up.eq(inflight + 1), inflight_down.eq(inflight - 1)]
-        inflight_nx = Mux(accept, Mux(take, inflight, inflight_up),
-                          Mux(take, inflight_down, inflight))
+        inflight_nx = _step(inflight, accept, take)
         stop = _fills(at_cap, below_cap, accept, take)
     else:
         inflight_nx = Signal.like(inflight)
