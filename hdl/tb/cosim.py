@@ -122,7 +122,8 @@ def build(design: Design, waves: bool | None = None) -> Path:
 
     waves = waves_requested() if waves is None else waves
     text = design.verilog()
-    key = hashlib.sha1((text + f"\nwaves={waves}").encode()).hexdigest()[:12]
+    args = _build_args(design.name)
+    key = hashlib.sha1((text + f"\nwaves={waves}\nargs={args}").encode()).hexdigest()[:12]
     out = build_root() / f"{design.name}-{key}"
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(out.parent / f"{out.name}.lock", "w") as lock:
@@ -132,12 +133,14 @@ def build(design: Design, waves: bool | None = None) -> Path:
             out.mkdir(exist_ok=True)
             src = out / f"{design.name}.v"
             src.write_text(text)
+            (out / _PORTS_VLT).write_text(_ports_only(design.name))
             _verilator_on_path()
             runtime = build_root() / f"runtime-waves{int(waves)}"
             _copy_runtime(runtime, out)
             runner = get_runner("verilator")
             runner.build(sources=[src], hdl_toplevel=design.name, build_dir=out,
-                         build_args=_BUILD_ARGS, timescale=("1ns", "1ps"), waves=waves,
+                         build_args=[*args, str(out / _PORTS_VLT)], timescale=("1ns", "1ps"),
+                         waves=waves,
                          log_file=out / "build.log")
             now = time.time()
             for n in _RUNTIME:
@@ -150,6 +153,28 @@ def build(design: Design, waves: bool | None = None) -> Path:
 
 
 _BUILD_ARGS = ["-Wno-fatal"]
+_PORTS_VLT = "ports.vlt"
+#: ``ALBCAP_PUBLIC=all`` keeps cocotb's default, every signal of the design public.
+PUBLIC_ENV = "ALBCAP_PUBLIC"
+
+
+def _build_args(top: str) -> list[str]:
+    """Verilator arguments: the lint warnings not fatal, and only the top's ports public.
+
+    cocotb's runner passes ``--public-flat-rw``, which makes every net of the design readable
+    and writable through VPI; Verilator then keeps each as its own variable and may optimise
+    none away. The benches touch only the top's ports (``hdl.tb.cocotb_bench``), so the
+    build turns it off and a configuration file (:func:`_ports_only`) makes just the ports
+    public.
+    """
+    if os.environ.get(PUBLIC_ENV, "") == "all":
+        return list(_BUILD_ARGS)
+    return [*_BUILD_ARGS, "--no-public-flat-rw"]
+
+
+def _ports_only(top: str) -> str:
+    """A Verilator configuration file that makes the ports of module ``top`` public."""
+    return f'`verilator_config\npublic_flat_rw -module "{top}" -var "*"\n'
 # Verilator's run-time library, compiled into every build with the same flags. It takes three
 # quarters of a build's time (about 17 of 23 s here), so its objects are compiled once and copied
 # into later builds. Make rebuilds them when they are older than Vtop.mk, which Verilator writes
