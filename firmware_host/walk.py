@@ -22,12 +22,16 @@ from model.depth import event_time_s
 from model.matched_filter import Bank
 from model.registers import Config
 
-__all__ = ["CALIBRATION_SEED", "WALK_NODES", "calibrate_walk", "calibrated_templates"]
+__all__ = ["CALIBRATION_SEED", "MIN_PER_NODE", "WALK_NODES", "calibrate_walk",
+           "calibrated_templates", "walk_table"]
 
 #: Seed of the calibration shots; evaluation sweeps use other seeds.
 CALIBRATION_SEED = 0xCA1B
 #: Table nodes per template: a bin of 5 m holds a node every 0.4 m or so.
 WALK_NODES = 12
+#: Calibration detections per table node, at least: a template seen fewer times gets fewer
+#: nodes (a coarser table), and one seen fewer than ``2 * MIN_PER_NODE`` times none.
+MIN_PER_NODE = 4
 
 
 def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
@@ -59,9 +63,12 @@ def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
     float64 ndarray, shape (K, 2, nodes)
         Per template ``k``: ``walk[k, 0]`` the raw separations (samples, increasing) and
         ``walk[k, 1]`` the corrections (samples) there; ``model.depth.walk_correction``
-        interpolates linearly and holds the end values outside. A template with too few
-        detections gets a zero table (no correction): separations ``0 .. nodes - 1`` and
-        corrections 0, which :func:`calibrated_templates` tells apart.
+        interpolates linearly and holds the end values outside. A template with fewer than
+        ``nodes * MIN_PER_NODE`` detections is measured on fewer nodes (at least
+        :data:`MIN_PER_NODE` detections each), spread over the ``nodes`` columns as the same
+        piecewise-linear curve; one with fewer than ``2 * MIN_PER_NODE`` gets a zero table (no
+        correction): separations ``0 .. nodes - 1`` and corrections 0, which
+        :func:`calibrated_templates` tells apart.
     """
     from sim.shots import make_shots
 
@@ -91,16 +98,45 @@ def calibrate_walk(scene, bank: Bank, cfg: Config, *, first_m: float = 1.0,
     walk[:, 0] = np.arange(nodes)
     for k in range(bank.K):
         sel = ok & (b.template == k)
-        x, y = raw[sel], want[sel] - raw[sel]
-        if x.size < 4 * nodes:
-            continue
-        # Node cells hold equal numbers of detections; the median of each cell is robust to
-        # the noise peaks a deep bin picks up now and then.
-        order = np.argsort(x)
-        cells = np.array_split(order, nodes)
-        walk[k, 0] = [np.median(x[c]) for c in cells]
-        walk[k, 1] = [np.median(y[c]) for c in cells]
+        table = walk_table(raw[sel], want[sel] - raw[sel], nodes)
+        if table is not None:
+            walk[k] = table
     return walk
+
+
+def walk_table(x, y, nodes: int = WALK_NODES) -> np.ndarray | None:
+    """One template's table from its calibration detections, or None if they are too few.
+
+    Parameters
+    ----------
+    x, y : float arrays, shape (n,)
+        Raw separations and the corrections they needed, samples.
+    nodes : int
+        Columns of the table (>= 2).
+
+    Returns
+    -------
+    float64 ndarray, shape (2, nodes), or None
+        Separations (non-decreasing) and corrections. ``m = min(nodes, n // MIN_PER_NODE)``
+        cells of equal counts along ``x`` each give a node (the medians of ``x`` and ``y``:
+        robust to the noise peaks a deep bin picks up now and then); with ``m < nodes`` the
+        ``m`` nodes sit on columns spread over the table, first and last included, and the
+        columns between them on the straight segments, so the table is the same
+        piecewise-linear curve. None when ``m < 2``.
+    """
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    # A bin at the edge of the water's reach (or the pulse's own bin, which serves only the
+    # first metres) is seen far less often than the others; a coarser table still removes its
+    # walk, which is largest there (half a metre in the deepest bin reached, seed 000 water).
+    m = min(nodes, x.size // MIN_PER_NODE)
+    if m < 2:
+        return None
+    cells = np.array_split(np.argsort(x, kind="stable"), m)
+    xs = np.array([np.median(x[c]) for c in cells])
+    ys = np.array([np.median(y[c]) for c in cells])
+    cols = np.round(np.linspace(0, nodes - 1, m))
+    return np.stack([np.interp(np.arange(nodes), cols, xs),
+                     np.interp(np.arange(nodes), cols, ys)])
 
 
 def calibrated_templates(walk: np.ndarray) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
-from firmware_host.walk import calibrate_walk, calibrated_templates
+from firmware_host.walk import MIN_PER_NODE, calibrate_walk, calibrated_templates, walk_table
 from model.chain import run_chain
 from model.depth import depth_from_peaks, walk_correction
 from model.registers import Config
@@ -124,3 +124,30 @@ def test_bottoms_of_uncalibrated_templates_are_weak():
     weak = m.estimate(shots)
     np.testing.assert_array_equal(weak.depth_m, sure.depth_m)
     assert weak.detected.all() and not weak.confident.any()
+
+
+def test_walk_table_nodes_follow_the_detections():
+    """Enough detections: one node per cell of equal counts (the cells' medians). Fewer: fewer
+    nodes, laid on the table's columns as the same piecewise-linear curve. Too few: None."""
+    rng = np.random.default_rng(5)
+    x = rng.uniform(300.0, 400.0, 48)
+    y = 0.01 * (x - 350.0) ** 2 / 50.0 + rng.normal(0, 0.05, x.size)
+    full = walk_table(x, y, 12)
+    order = np.argsort(x)
+    for j, cell in enumerate(np.array_split(order, 12)):
+        assert full[0, j] == np.median(x[cell]) and full[1, j] == np.median(y[cell])
+    # 20 detections: 5 nodes (MIN_PER_NODE each) on columns 0, 3 (2.75), 6 (5.5), 8, 11
+    few = walk_table(x[:20], y[:20], 12)
+    cells = np.array_split(np.argsort(x[:20]), 20 // MIN_PER_NODE)
+    xs = np.array([np.median(x[:20][c]) for c in cells])
+    ys = np.array([np.median(y[:20][c]) for c in cells])
+    assert few.shape == (2, 12) and np.all(np.diff(few[0]) > 0)
+    np.testing.assert_array_equal(few[:, [0, 3, 6, 8, 11]], np.stack([xs, ys]))
+    # the same curve: walk_correction of the 12 columns equals linear interpolation of the 5
+    probe = np.linspace(290.0, 410.0, 241)
+    table = few[None]
+    np.testing.assert_allclose(walk_correction(probe, np.zeros(probe.size, int), table),
+                               np.interp(probe, xs, ys), rtol=0, atol=1e-12)
+    assert walk_table(x[:2 * MIN_PER_NODE], y[:2 * MIN_PER_NODE], 12).shape == (2, 12)
+    assert walk_table(x[:2 * MIN_PER_NODE - 1], y[:2 * MIN_PER_NODE - 1], 12) is None
+    assert walk_table(x[:0], y[:0], 12) is None
