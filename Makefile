@@ -30,7 +30,8 @@ bench: $(VENV)/.installed
 # bench, the on-chip builds (from the recorded FPGA figures), then charts and tables
 results: $(VENV)/.installed
 	$(VENV)/bin/albcap bench accuracy --no-progress
-	$(VENV)/bin/albcap bench regimes --no-progress
+	# (exits 1 when a method breaks an invariant; the violations go into the tables, so go on)
+	-$(VENV)/bin/albcap bench regimes --no-progress
 	$(VENV)/bin/albcap bench speed --out docs/figures/speed.json
 	$(VENV)/bin/albcap bench builds --no-progress --out docs/figures/builds.json
 	$(VENV)/bin/albcap chart --results docs/results.md

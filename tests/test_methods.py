@@ -249,6 +249,39 @@ def test_float_weak_pass(scene):
     assert weak[:60].sum() > 0 and not e2.confident[60:].any()
 
 
+@pytest.mark.parametrize("name", ["gpg_lm", "weibull_eemd"])
+def test_shape_fits_are_weak_on_clipped_waveforms(name, scene, setup):
+    """A waveform clipped in every channel (one channel of gain 100, as the stability suite's
+    one-channel regime) has a cut-off top that no fitted shape matches: the fits answer it
+    weakly. The same depth with three channels is not clipped, and they stand behind it."""
+    import dataclasses
+
+    from model.methods._common import float_wave
+
+    one = dataclasses.replace(scene, gains=(100.0, 100.0, 100.0))
+    clipped = make_shots(one, 5.0, N_SHOTS, seed=505)
+    three = make_shots(scene, 5.0, N_SHOTS, seed=505)
+    assert float_wave(clipped).clipped.any(axis=1).all()
+    assert not float_wave(three).clipped.any()
+    m = prepared(name, setup)
+    e1, e3 = run_quiet(m, clipped), run_quiet(m, three)
+    assert e1.detected.any() and not e1.confident.any()
+    assert e3.confident.all()
+
+
+def test_float_wave_marks_samples_clipped_in_every_channel(setup):
+    from model.methods._common import float_wave, stitch_cfg
+
+    t = stitch_cfg(setup).sat_threshold
+    adc = np.full((1, 3, 300), 20, np.uint8)
+    adc[0, :, 100] = (t - 1, t, t)  # the low channel still reads: not clipped
+    adc[0, :, 101] = (t, t, t)
+    adc[0, :, 102] = (255, 255, 255)
+    clipped = float_wave(synthetic(setup, adc)).clipped
+    assert clipped.shape == (1, 300)
+    assert np.flatnonzero(clipped[0]).tolist() == [101, 102]
+
+
 class TestReproducible:
     """The same shots give the same bits, whatever else the process has allocated.
 

@@ -84,9 +84,15 @@ class FloatWave:
         Lead-in samples used (none of them can hold the surface).
     dt_s : float
         Sample period, s.
+    clipped : ndarray bool (n, N) or None
+        Samples where every channel is at or over the stitch's saturation threshold: the
+        stitched value is the low channel's clipped code, under the true echo (None: not known,
+        as for :func:`ideal_wave`'s noise-free waves, which never clip).
     """
 
-    def __init__(self, y: np.ndarray, dt_s: float, n0: int | None = None):
+    def __init__(self, y: np.ndarray, dt_s: float, n0: int | None = None,
+                 clipped: np.ndarray | None = None):
+        self.clipped = None if clipped is None else np.asarray(clipped, dtype=bool)
         y = np.asarray(y, dtype=np.float64)
         if n0 is None:
             n0 = max(4, round(NOISE_WINDOW_S / dt_s))
@@ -101,8 +107,9 @@ class FloatWave:
 def float_wave(shots: Shots) -> FloatWave:
     """The :class:`FloatWave` of digitized shots (``linear`` stitch of ``Shots.adc``)."""
     adc = check_adc_shots(shots)
-    x = stitch_config(adc, stitch_cfg(shots.setup))
-    return FloatWave(x, shots.setup.dt_s)
+    cfg = stitch_cfg(shots.setup)
+    x = stitch_config(adc, cfg)
+    return FloatWave(x, shots.setup.dt_s, clipped=(adc >= cfg.sat_threshold).all(axis=-2))
 
 
 def ideal_wave(setup: Setup, depths_m, seed: int = 7) -> tuple[FloatWave, np.ndarray]:

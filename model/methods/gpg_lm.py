@@ -71,11 +71,14 @@ class GpgLM(PeaksFloat):
     from the picked peak; ``A_s <= 0``; ``A_b`` below 3 noise deviations; ``s_b`` outside
     0.3..10 x its Table 3 value; then bottom not 6 ns after the surface. (Pentagon corners
     that cross during the fit are not flagged: the pentagon only models the column under the
-    two returns, and the model sorts them.)
+    two returns, and the model sorts them.) Weak (besides the weak detections it inherits):
+    a waveform clipped in every channel (``FloatWave.clipped``): the Gaussians are then fitted
+    to a cut-off top.
     """
 
     name = "gpg_lm"
     label = "Gaussian+pentagon+Gaussian LM fit"
+    fits_shape = True
     error_bound_m = 0.5
     max_nfev = 200
     #: the per-survey depth table runs one fit per depth: 1 m steps keep it short

@@ -82,6 +82,8 @@ class PeaksFloat(Method):
     smooth_factor = 2.0
     #: largest relative difference of the water column's decay rate from the survey's
     column_tol = 0.25
+    #: a waveform fit (a shape model): answers from a clipped waveform are weak
+    fits_shape = False
 
     def __init__(self):
         self._table = None
@@ -185,5 +187,11 @@ class PeaksFloat(Method):
             ratio = self._column_rate(fw, r["surface_s"], r["bottom_s"]) / self._rate0
             with np.errstate(invalid="ignore"):
                 ok = ok & ~(np.abs(ratio - 1.0) > self.column_tol)
+        weak = self._last[1]["weak"]
+        if self.fits_shape and fw.clipped is not None:
+            # every channel clipped: the fitted shape's top is cut off, and a fit then matches
+            # a shape that is not there (the stability suite's one-channel regime: up to 70 %
+            # of the shots beyond the bound, confidently, before this)
+            weak = weak | fw.clipped.any(axis=1)
         return finish(shots.setup, ts, tb, ok, gate_s=fw.y.shape[1] * fw.dt_s,
-                      table=self._table, weak=self._last[1]["weak"])
+                      table=self._table, weak=weak)

@@ -49,11 +49,13 @@ class WeibullEEMD(PeaksFloat):
     (1 m steps, as each entry costs one EEMD and two fits). Units: codes in, seconds and metres
     out. Float, not bit-exact. Flags: a fit that failed or ended at a bound of ``k``; the rise
     time outside the window; a fitted peak below 3 noise deviations; bottom not 6 ns after the
-    surface.
+    surface. Weak (besides the weak detections it inherits): a waveform clipped in every
+    channel (``FloatWave.clipped``), whose cut-off top no Weibull fits.
     """
 
     name = "weibull_eemd"
     label = "Weibull fit after EEMD"
+    fits_shape = True
     error_bound_m = 0.5
     trials = 4
     seed = 2002
