@@ -24,11 +24,14 @@ class AdaptiveMF(ChainMethod):
     those of the survey (the bank is made for them).
 
     Failure modes: the template is that of its bin's centre, so the raw depth walks by a few
-    centimetres across each bin; the bank's range-walk table removes it (bias within 1 cm from 2
-    to 20 m, +4 cm at 22 m, seed 000 water, 50 shots per depth). Beyond about 22 m the
-    stretched bottom falls below threshold and is mostly not detected (flagged); the few
-    answers left there are noise peaks near the bottom (24 m: 26 % answered, -44 cm, worst
-    81 cm). ``error_bound_m = 1.0`` m covers those.
+    centimetres across each bin; the bank's range-walk table removes it (bias within 2 cm from 2
+    to 22 m, seed 000 water, 1000 shots per depth; the table of the deepest bin the water
+    lets through is coarser, as fewer calibration shots reach it: -11 cm at 23 m, -14 cm at
+    24 m, against -50 and -44 cm uncorrected). Beyond about 22 m the stretched bottom falls
+    below threshold and is mostly not detected (flagged: 60 % answered at 23 m, 27 % at 24 m,
+    3 % at 25 m). ``error_bound_m = 1.0`` m covers the answers left there. A bottom within
+    one sample of a template switch is not a peak (spec section 5): 3 m, on the first switch,
+    is 26 % detected.
     """
 
     name = "adaptive_mf"
