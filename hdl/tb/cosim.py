@@ -122,7 +122,7 @@ def build(design: Design, waves: bool | None = None) -> Path:
 
     waves = waves_requested() if waves is None else waves
     text = design.verilog()
-    args = _build_args(design.name)
+    args = _build_args()
     key = hashlib.sha1((text + f"\nwaves={waves}\nargs={args}").encode()).hexdigest()[:12]
     out = build_root() / f"{design.name}-{key}"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -139,9 +139,8 @@ def build(design: Design, waves: bool | None = None) -> Path:
             _copy_runtime(runtime, out)
             runner = get_runner("verilator")
             runner.build(sources=[src], hdl_toplevel=design.name, build_dir=out,
-                         build_args=[*args, str(out / _PORTS_VLT)], timescale=("1ns", "1ps"),
-                         waves=waves,
-                         log_file=out / "build.log")
+                         build_args=[*args, str(out / _PORTS_VLT)],
+                         timescale=("1ns", "1ps"), waves=waves, log_file=out / "build.log")
             now = time.time()
             for n in _RUNTIME:
                 for ext in ("o", "d"):
@@ -158,7 +157,7 @@ _PORTS_VLT = "ports.vlt"
 PUBLIC_ENV = "ALBCAP_PUBLIC"
 
 
-def _build_args(top: str) -> list[str]:
+def _build_args() -> list[str]:
     """Verilator arguments: the lint warnings not fatal, and only the top's ports public.
 
     cocotb's runner passes ``--public-flat-rw``, which makes every net of the design readable
@@ -175,6 +174,8 @@ def _build_args(top: str) -> list[str]:
 def _ports_only(top: str) -> str:
     """A Verilator configuration file that makes the ports of module ``top`` public."""
     return f'`verilator_config\npublic_flat_rw -module "{top}" -var "*"\n'
+
+
 # Verilator's run-time library, compiled into every build with the same flags. It takes three
 # quarters of a build's time (about 17 of 23 s here), so its objects are compiled once and copied
 # into later builds. Make rebuilds them when they are older than Vtop.mk, which Verilator writes
