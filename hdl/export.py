@@ -72,6 +72,8 @@ COMPONENTS = {
     "albcap_matched_filter": _matched_filter,
     "albcap_peak_detect": _peak_detect,
     "albcap_filter_detect": _filter_detect,
+    # frames dealt to one-lane joins in turn (many samples per clock without cross-lane logic)
+    "albcap_interleaved_detect": lambda **p: _load("interleave", "InterleavedDetect", **p),
     "albcap_link": lambda **p: _load("device", "Link", **p),
     "albcap_frame_packetizer": lambda **p: _load("frame", "FramePacketizer", **p),
     "albcap_top": lambda **p: _load("top", "Top", **p),  # pipeline and link; the pipeline is inside

@@ -138,7 +138,11 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
             lanes = getattr(component, "lanes", 1)
         # what a throughput figure needs beyond fmax (hdl.detect.FilterDetect has them)
         extra = {k: getattr(component, k) for k in ("frame_gap_clocks", "min_bin_offset",
-                                                     "taps_max") if hasattr(component, k)}
+                                                     "taps_max", "engines")
+                 if hasattr(component, k)}
+        # samples a clock when the input runs free (hdl.interleave: the fewer of lanes and
+        # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
+        rate = getattr(component, "samples_per_clock", lanes)
         (wd / f"{name}.v").write_text(verilog.convert(component, name=name, emit_src=False,
                                                       platform=ECP5_SYNTH))
         _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
@@ -164,7 +168,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "lanes": lanes,
         "params": dict(params or {}),
         **extra,
-        "samples_per_s": round(lanes * f * 1e6),
+        "samples_per_s": round(rate * f * 1e6),
         "target_mhz": target_mhz,
         "router": router,
         "seconds": round(time.perf_counter() - t0, 1),

@@ -563,6 +563,9 @@ def _method_json(spec: MethodSpec, points, rows: list, n: int) -> dict:
 FPGA_FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures" / "fpga.json"
 #: The component that is the on-chip detection path: the filter and the detector joined.
 ONCHIP_COMPONENT = "albcap_filter_detect"
+#: Every build of that path: the join with ``lanes`` samples per clock, and whole frames dealt
+#: to one-lane joins in turn (``hdl.interleave``, the same results bit for bit).
+ONCHIP_COMPONENTS = (ONCHIP_COMPONENT, "albcap_interleaved_detect")
 
 
 def onchip_fpga_time(n_samples: float, taps: int, figures: dict | None) -> dict | None:
@@ -583,7 +586,7 @@ def onchip_fpga_time(n_samples: float, taps: int, figures: dict | None) -> dict 
         return None
     best = None
     for key, f in figures.get("figures", {}).items():
-        if f.get("component") != ONCHIP_COMPONENT:
+        if f.get("component") not in ONCHIP_COMPONENTS:
             continue
         if f.get("params", {}).get("taps_max", 64) < taps:
             continue
@@ -597,11 +600,19 @@ def onchip_fpga_time(n_samples: float, taps: int, figures: dict | None) -> dict 
 def fpga_time(key: str, f: dict, n_samples: float) -> dict:
     """The time per waveform of the build ``key`` (its figure ``f``) for frames of
     ``n_samples`` samples: ``ceil(n_samples / lanes) + frame_gap_clocks`` clocks at its
-    ``fmax_mhz``. Keys as :func:`onchip_fpga_time` returns."""
-    lanes = int(f.get("lanes", 1))
-    clocks = math.ceil(n_samples / lanes) + int(f.get("frame_gap_clocks", 0))
+    ``fmax_mhz``, or for an interleaved build (``engines`` recorded) the steady rate of
+    :func:`model.interleave.clocks_per_frame`. Keys as :func:`onchip_fpga_time` returns, plus
+    ``engines`` (1 for a single join)."""
+    from .interleave import clocks_per_frame
+
+    lanes, engines = int(f.get("lanes", 1)), int(f.get("engines", 1))
+    gap = int(f.get("frame_gap_clocks", 0))
+    if "engines" in f:
+        clocks = _r(clocks_per_frame(n_samples, lanes, engines, gap), 2)
+    else:
+        clocks = math.ceil(n_samples / lanes) + gap
     return {"us_per_waveform": _r(clocks / f["fmax_mhz"], 4), "key": key, "lanes": lanes,
-            "fmax_mhz": f["fmax_mhz"], "clocks_per_waveform": clocks}
+            "engines": engines, "fmax_mhz": f["fmax_mhz"], "clocks_per_waveform": clocks}
 
 
 #: Serial times per waveform, ``albcap bench speed --out`` (``model.speed``).
@@ -707,7 +718,7 @@ def targets(methods: list, fpga: dict | None = None, serial: dict | None = None,
                     row["offline_us_per_waveform_serial"] = off
                 speed = off / fpga["us_per_waveform"]
                 row.update(text=f"on-chip adaptive >= 100 x faster than the best offline "
-                                f"({how}, {off:g} us; FPGA: {fpga['lanes']} lanes at "
+                                f"({how}, {off:g} us; FPGA: {_build_words(fpga)} at "
                                 f"{fpga['fmax_mhz']:g} MHz, {fpga['us_per_waveform']:g} us per "
                                 f"waveform, `{fpga['key']}`)", fpga=fpga)
             else:
@@ -717,6 +728,14 @@ def targets(methods: list, fpga: dict | None = None, serial: dict | None = None,
             row.update(value=_r(speed, 1), met=speed >= 100.0)
             out.append(row)
     return {"targets": out, "all_met": bool(out) and all(t["met"] for t in out)}
+
+
+def _build_words(fpga: dict) -> str:
+    """``2 lanes`` or ``10 lanes into 10 engines`` (an interleaved build)."""
+    words = f"{fpga['lanes']} lane{'s' if fpga['lanes'] != 1 else ''}"
+    if fpga.get("engines", 1) > 1:
+        words += f" into {fpga['engines']} one-lane engines"
+    return words
 
 
 def _chosen_build(builds: list | None, ref: dict) -> dict | None:

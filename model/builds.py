@@ -31,6 +31,7 @@ from .accuracy import (
     DEPTHS_FULL,
     FPGA_FIGURES,
     ONCHIP_COMPONENT,
+    ONCHIP_COMPONENTS,
     MethodSpec,
     Point,
     Sweep,
@@ -43,8 +44,8 @@ from .accuracy import (
     unstretched_sweep,
 )
 
-__all__ = ["BUILDS_FIGURES", "METHOD", "SHOTS", "VARIANTS", "bench_builds", "build_spec",
-           "load_builds", "measured_builds"]
+__all__ = ["BUILDS_FIGURES", "METHOD", "SHOTS", "VARIANTS", "bench_builds", "build_label",
+           "build_spec", "load_builds", "measured_builds"]
 
 #: Written by ``albcap bench builds --out`` (a step of ``make results``), read by ``score``.
 BUILDS_FIGURES = FPGA_FIGURES.with_name("builds.json")
@@ -64,7 +65,8 @@ def measured_builds(figures: dict | None) -> list[dict]:
     Returns
     -------
     list of dict
-        ``key``, ``lanes``, ``taps_max``, ``fmax_mhz``, ``samples_per_s``, ``min_bin_offset``
+        ``key``, ``lanes``, ``engines`` (1 but for an interleaved build), ``taps_max``,
+        ``fmax_mhz``, ``samples_per_s``, ``min_bin_offset``
         [samples], ``frame_gap_clocks``, ``dsps``, ``luts``.
 
     Raises
@@ -75,19 +77,28 @@ def measured_builds(figures: dict | None) -> list[dict]:
     """
     out = []
     for key, f in (figures or {}).get("figures", {}).items():
-        if f.get("component") != ONCHIP_COMPONENT:
+        if f.get("component") not in ONCHIP_COMPONENTS:
             continue
         missing = [k for k in ("min_bin_offset", "taps_max", "fmax_mhz", "samples_per_s")
                    if k not in f]
         if missing:
             raise ValueError(f"FPGA figure {key!r} lacks {missing}: measure it again with "
                              f"`albcap hdl synth --out`")
-        out.append({"key": key, "lanes": int(f.get("lanes", 1)), "taps_max": int(f["taps_max"]),
+        out.append({"key": key, "lanes": int(f.get("lanes", 1)),
+                    "engines": int(f.get("engines", 1)), "taps_max": int(f["taps_max"]),
                     "fmax_mhz": f["fmax_mhz"], "samples_per_s": f["samples_per_s"],
                     "min_bin_offset": int(f["min_bin_offset"]),
                     "frame_gap_clocks": int(f.get("frame_gap_clocks", 0)),
                     "dsps": f.get("dsps"), "luts": f.get("luts")})
     return sorted(out, key=lambda b: -b["samples_per_s"])
+
+
+def build_label(build: dict) -> str:
+    """``2 lanes x 64`` (a join of ``lanes``), ``10 lanes, 10 engines x 8`` (interleaved)."""
+    lanes = f"{build['lanes']} lane{'s' if build['lanes'] != 1 else ''}"
+    if build.get("engines", 1) > 1:
+        lanes += f", {build['engines']} engines"
+    return f"{lanes} x {build['taps_max']}"
 
 
 def build_spec(build: dict, name: str = METHOD) -> MethodSpec:

@@ -265,6 +265,7 @@ def builds_chart(builds: dict, acc: dict | None, out_dir: Path) -> list[Path]:
     """The chip's time per waveform against RMSE over 1-26 m, one point per measured build
     and variant, with the targets' lines where the accuracy JSON gives the reference."""
     from .accuracy import load_speed_figures
+    from .builds import build_label
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 5))
@@ -279,7 +280,7 @@ def builds_chart(builds: dict, acc: dict | None, out_dir: Path) -> list[Path]:
             us = v["fpga"]["us_per_waveform"]
             ax.scatter(us, r * 100, color=colour, marker="s", zorder=3)
             det = v["method"]["summary"]["detection_rate"]
-            ax.annotate(f"{b['lanes']} x {b['taps']} taps, {b['fmax_mhz']:g} MHz ({det:.0%})",
+            ax.annotate(f"{build_label(b)} taps, {b['fmax_mhz']:g} MHz ({det:.0%})",
                         (us, r * 100), xytext=(5, 4), textcoords="offset points", fontsize=7,
                         color=colour)
         methods = None
@@ -486,15 +487,17 @@ def _run_table(acc: dict | None, reg: dict | None) -> str:
 
 def _builds_table(builds: dict) -> str:
     """Per measured build and variant: the bank, the chip's time and the accuracy."""
-    rows = ["| build (`albcap_filter_detect`) | DSPs | fmax MHz | taps | first switch, samples "
-            "| variant | chip us/waveform | RMSE cm | detection % | reach m | confident wrong |",
+    from .builds import build_label
+
+    rows = ["| build (`albcap_filter_detect`; with engines `albcap_interleaved_detect`) | DSPs "
+            "| fmax MHz | taps | first switch, samples | variant | chip us/waveform | RMSE cm "
+            "| detection % | reach m | confident wrong |",
             "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
     for b in builds["builds"]:
         for name, v in b["variants"].items():
             s = v["method"]["summary"]
             reach = "-" if s["max_depth_m"] is None else f"{s['max_depth_m']:g}"
-            lanes = f"{b['lanes']} lane{'s' if b['lanes'] != 1 else ''}"
-            rows.append(f"| {lanes} x {b['taps_max']} | {b['dsps']} | "
+            rows.append(f"| {build_label(b)} | {b['dsps']} | "
                         f"{b['fmax_mhz']:g} | {b['taps']} | >= {b['bank_min_bin_offset']} | "
                         f"{name} | {v['fpga']['us_per_waveform']:.3f} | {_cm(s['rmse_m'], 2)} "
                         f"| {_pct(s['detection_rate'])} | {reach} | {s['n_wrong_confident']} |")

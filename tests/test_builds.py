@@ -11,7 +11,7 @@ import pytest
 from firmware_host.cli import main
 from model import accuracy
 from model.accuracy import summarize, targets
-from model.builds import bench_builds, build_spec, load_builds, measured_builds
+from model.builds import bench_builds, build_label, build_spec, load_builds, measured_builds
 
 
 def _fig(lanes, taps, fmax, mbo, gap):
@@ -185,3 +185,34 @@ class TestBenchBuilds:
     def test_cli_rejects_bad_shots(self, capsys):
         assert main(["bench", "builds", "--shots", "0"]) != 0
         assert "--shots must be an integer >= 1, not '0'" in capsys.readouterr().err
+
+
+_IL_FIG = {"component": "albcap_interleaved_detect", "fmax_mhz": 120.0, "lanes": 10,
+           "engines": 10, "taps_max": 8, "min_bin_offset": 17, "frame_gap_clocks": 16,
+           "samples_per_s": 1.2e9, "dsps": 100, "luts": 48000,
+           "params": {"lanes": 10, "engines": 10, "taps_max": 8}}
+
+
+class TestInterleavedBuild:
+    """A build of ``hdl.interleave`` (frames dealt to one-lane engines) is one of the join's
+    builds: its time is the slower of its input and its engines."""
+
+    FIG = _IL_FIG
+    KEY = "albcap_interleaved_detect[engines=10,lanes=10,taps_max=8]"
+
+    def test_listed_with_its_engines(self):
+        b = measured_builds({"figures": {**FIGS["figures"], self.KEY: self.FIG}})
+        assert b[0]["key"] == self.KEY
+        assert (b[0]["engines"], b[0]["min_bin_offset"]) == (10, 17)
+        assert build_label(b[0]) == "10 lanes, 10 engines x 8"
+        assert build_label(b[1]) == "8 lanes x 16"
+        assert build_spec(b[0]).name == "adaptive_mf[engines=10,lanes=10,taps_max=8]"
+
+    def test_time_is_the_engines_rate(self):
+        t = accuracy.fpga_time(self.KEY, self.FIG, 725.0)
+        # engines: (725 + 16) / 10 = 74.1 clocks a frame; the input's 73 beats are fewer
+        assert t["clocks_per_waveform"] == pytest.approx(74.1)
+        assert t["us_per_waveform"] == pytest.approx(74.1 / 120.0, abs=1e-4)
+        assert t["engines"] == 10
+        fast_engines = {**self.FIG, "engines": 20}
+        assert accuracy.fpga_time(self.KEY, fast_engines, 725.0)["clocks_per_waveform"] == 73
