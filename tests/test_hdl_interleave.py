@@ -26,7 +26,7 @@ from model.registers import Config, by_name
 from model.stitch import stitch_config
 from model.vectors import lane_words
 
-LANES, ENGINES, TAPS_MAX, STORE_BEATS = 3, 3, 8, 20
+LANES, ENGINES, TAPS_MAX, STORE_BEATS = 3, 3, 8, 16
 N_ECHO_FRAMES = 6
 PARAMS = {"lanes": LANES, "engines": ENGINES, "taps_max": TAPS_MAX, "store_beats": STORE_BEATS}
 
@@ -50,6 +50,26 @@ def case():
               LANES * STORE_BEATS, LANES * STORE_BEATS + 1, 95, 250):
         frames.append(rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16))
     return bank, cfg, frames
+
+
+def scene_case(n_frames=2 * ENGINES):
+    """Shots of the seed000 survey scene at 6, 12 and 18 m, with the bank an 8-tap build
+    holds (``firmware_host.coeffs.scene_bank`` cut to ``TAPS_MAX`` taps) and the survey's
+    registers: the on-chip path as the builds study runs it."""
+    from firmware_host.coeffs import SURVEY_NOISE_LOG2, scene_bank, survey_scene
+    from sim.scene import preset
+    from sim.shots import make_shots
+
+    sc = survey_scene(preset("seed000"))
+    sb = scene_bank(sc, n_templates=8, n_taps=TAPS_MAX, mc_packets=4000)
+    cfg = Config(noise_log2=SURVEY_NOISE_LOG2, out_shift=sb.out_shift, bin_offset=sb.bin_offset,
+                 bin_len=sb.bin_len, min_thr=sb.min_thr, bottom_rule=2)
+    frames = []
+    for i in range(n_frames):
+        depth = (6.0, 12.0, 18.0)[i % 3]
+        adc = make_shots(sc, depth, 1, seed=70 + i).adc[0]
+        frames.append(stitch_config(adc, cfg))
+    return sb.bank, cfg, frames
 
 
 def sample_source(frames, pattern) -> Source:
@@ -131,12 +151,26 @@ def test_verilator(tmp_path, traffic_name):
     assert sum(bool(r.bottom.found) for r in results[:N_ECHO_FRAMES]) >= 2
 
 
+@pytest.mark.parametrize("traffic_name", ["idle", "backpressure"])
+def test_verilator_scene(tmp_path, traffic_name):
+    """Simulated shots (frames of the scene's gate, longer than a store) with the survey bank:
+    each engine finds the surface and the bottom, bit for bit."""
+    bank, cfg, frames = scene_case()
+    res = run_case(tmp_path, bank, cfg, frames, traffic_name, "scene")
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"o": 0}
+    results = interleaved_filter_and_detect(frames, bank, cfg, ENGINES)
+    check_results(res.sinks["o"], results)
+    assert all(bool(r.surface.found) and bool(r.bottom.found) for r in results)
+    assert len({int(r.bottom.template) for r in results}) >= 2, "the template walk should run"
+
+
 def test_verilator_rate(tmp_path):
     """Equal frames back to back: the input's accept clocks step at the engines' rate (19.7
     clocks a frame measured; at most the 20.3 that ``clocks_per_frame`` charges)."""
     rng = np.random.default_rng(46)
     bank, cfg, _ = case()
-    n, n_frames = 45, 48  # 15 beats: a frame fits a store
+    n, n_frames = 45, 48  # 15 beats: a frame fits a store of 16
     frames = [rng.integers(-2000, 2000, n).astype(np.int16) for _ in range(n_frames)]
     res = run(Design(InterleavedDetect, **PARAMS), tmp_path,
               sources={"coef": coef_source(bank), "i": sample_source(frames, PLAIN)},
