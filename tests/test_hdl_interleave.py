@@ -4,8 +4,10 @@ Three one-lane engines behind a 3-lane input (one Verilator build): echo-like fr
 register's floor of ``bin_offset`` (the template walk runs in every engine), frame lengths at
 the edges (1, 2, lanes - 1, lanes, lanes + 1, the detector's windows plus and minus one, longer
 than a store), seeded random frames; plain, with idle insertion and with backpressure. Every
-field of every result, in frame order. The steady-state rate of equal frames is checked
-against ``model.interleave.clocks_per_frame``, and the constructor's errors exactly.
+field of every result, in frame order; simulated shots of the survey scene with the survey bank
+cut to 8 taps. The steady-state rate of equal frames is checked against
+``model.interleave.clocks_per_frame``, the constructor's errors exactly, and the smallest
+store (two beats) in Amaranth's simulator.
 """
 
 from __future__ import annotations
@@ -189,3 +191,33 @@ def test_verilator_rate(tmp_path):
     # without any wait
     bound = clocks_per_frame(n, LANES, ENGINES, dut().frame_gap_clocks)
     assert clocks_per_frame(n, LANES, ENGINES, 0) < measured <= bound, (measured, bound)
+
+
+class TestAmaranthSim:
+    """Quick checks of the dealing, the gearbox and the collection in Amaranth's simulator:
+    two 2-lane engines of one tap, a store of two beats (its smallest), short frames."""
+
+    def test_two_engines_smallest_store(self):
+        from hdl.tb.amsim import simulate
+        from model.matched_filter import Bank
+
+        rng = np.random.default_rng(47)
+        bank = Bank(np.array([[3], [-5]], np.int16))
+        cfg = Config(out_shift=0, bin_offset=24, bin_len=4, noise_log2=2, min_sep=2)
+        frames = [rng.integers(-300, 300, n).astype(np.int16) for n in (9, 1, 2, 3, 40, 7, 30)]
+        frames[4][30] = 20_000  # a surface in one frame: the next frame's engine has none
+        words = lane_words(frames, 2)
+        data = {f"x.{p}": words["values"][:, p] for p in range(2)}
+        data.update({k: words[k] for k in ("count", "first", "last")})
+        d = InterleavedDetect(lanes=2, engines=2, taps_max=1, store_beats=2)
+        res = simulate(d, sources={"coef": coef_source(bank),
+                                   "i": Source(d.in_layout, data, TRAFFIC["idle"][0])},
+                       sinks={"o": Sink(PEAK_RESULT, TRAFFIC["backpressure"][1])},
+                       static={**cfg_ports(cfg, "filter", "cfg_filter"),
+                               **cfg_ports(cfg, "peak", "cfg_peak"),
+                               "templates": bank.K, "taps": bank.L},
+                       max_clocks=5000)
+        assert not res.timeout
+        results = interleaved_filter_and_detect(frames, bank, cfg, 2)
+        check_results(res.sinks["o"], results)
+        assert bool(results[4].surface.found) and not bool(results[5].surface.found)
