@@ -158,26 +158,39 @@ class InterleavedDetect(wiring.Component):
         return m
 
     def _deal(self, m: Module, width: int) -> None:
-        """Input slice -> the store of the engine whose turn it is -> gearbox -> engine."""
+        """Input slice -> the store of the engine whose turn it is -> gearbox -> engine.
+
+        The stores sit by their engines, spread over the part, so nothing but registers
+        crosses between them and the dealer: a write is decided here and made a clock later
+        from registers (the beat kept in ``w_data``, one per store's enable), and what a
+        gearbox takes comes back as a register (``taken``), counted a clock late.
+        """
         ins = m.submodules.in_slice = register_slice(width)
         m.d.comb += [ins.w_data.eq(self.i.payload), ins.w_en.eq(self.i.valid),
                      self.i.ready.eq(ins.w_rdy)]
         beat = data.View(self.in_layout, ins.r_data)
         turn = Signal(self.engines, init=1)  # one-hot: the engine the current frame goes to
+        w_data = Signal(width)  # the beat being written, a clock after its decision
+        m.d.sync += w_data.eq(ins.r_data)
         takes = []
         for k, e in enumerate(self._engines):
             store = m.submodules[f"store{k}"] = _Store(width, self.store_beats)
-            # entries held, read stages included, until the gearbox takes them; `room` is a
-            # register made from the count of the clock before, so it promises a free entry
-            # for this clock's write whatever that clock's count became (one write a clock)
+            # `held`: beats decided for this store and not yet seen taken by its gearbox. It
+            # is never below what the store holds when a decided write lands (a write lands a
+            # clock after its decision, a take is seen a clock after it is made), and `room`,
+            # a register made from the count of the clock before, leaves a free entry for
+            # this clock's decision whatever that clock's count became: the store is never
+            # written full
             held = Signal(range(self.store_beats + 1), name=f"held{k}")
             room = Signal(name=f"room{k}")
             write = Signal(name=f"write{k}")
+            write_q = Signal(name=f"write{k}_q")
+            taken = Signal(name=f"taken{k}")
             m.d.comb += [write.eq(ins.r_rdy & turn[k] & room),
-                         store.w_data.eq(ins.r_data), store.w_en.eq(write),
-                         store.w_keep.eq(write)]
-            taken = store.r.valid & store.r.ready
-            m.d.sync += [held.eq(_step(held, write, taken)),
+                         store.w_data.eq(w_data), store.w_en.eq(write_q),
+                         store.w_keep.eq(write_q)]
+            m.d.sync += [write_q.eq(write), taken.eq(store.r.valid & store.r.ready),
+                         held.eq(_step(held, write, taken)),
                          room.eq(_le(held, self.store_beats - 2))]
             takes.append(turn[k] & room)
             self._gearbox(m, store.r, e.i, k)
@@ -205,19 +218,23 @@ class InterleavedDetect(wiring.Component):
             m.d.sync += j.eq(Mux(at_end, 0, j + 1))
 
     def _collect(self, m: Module) -> None:
-        """The engines' results in frame order into an output slice."""
+        """Each engine's result into a register slice by the engine, then in frame order into
+        the output slice: only registers cross between the engines and the collector."""
         outs = m.submodules.out_slice = register_slice(PEAK_RESULT.size)
         turn = Signal(self.engines, init=1)  # one-hot: the engine whose result is next
+        near = []
+        for k, e in enumerate(self._engines):
+            sl = m.submodules[f"result_slice{k}"] = register_slice(PEAK_RESULT.size)
+            m.d.comb += [sl.w_data.eq(e.o.payload), sl.w_en.eq(e.o.valid),
+                         e.o.ready.eq(sl.w_rdy), sl.r_en.eq(turn[k] & outs.w_rdy)]
+            near.append(sl)
         m.d.comb += [
-            outs.w_data.eq(reduce(or_, (Mux(turn[k], e.o.payload.as_value(), 0)
-                                        for k, e in enumerate(self._engines)))),
-            outs.w_en.eq(reduce(or_, (turn[k] & e.o.valid
-                                      for k, e in enumerate(self._engines)))),
+            outs.w_data.eq(reduce(or_, (Mux(turn[k], sl.r_data, 0)
+                                        for k, sl in enumerate(near)))),
+            outs.w_en.eq(reduce(or_, (turn[k] & sl.r_rdy for k, sl in enumerate(near)))),
             self.o.payload.eq(outs.r_data), self.o.valid.eq(outs.r_rdy),
             outs.r_en.eq(self.o.ready),
         ]
-        for k, e in enumerate(self._engines):
-            m.d.comb += e.o.ready.eq(turn[k] & outs.w_rdy)
         with m.If(outs.w_en & outs.w_rdy):
             m.d.sync += turn.eq(_rotate(turn))
 
