@@ -35,6 +35,7 @@ from operator import or_
 
 from amaranth.hdl import Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFOBuffered
 from amaranth.lib.wiring import In, Out
 
 from model.matched_filter import K_MAX, L_MAX
@@ -158,45 +159,52 @@ class InterleavedDetect(wiring.Component):
         return m
 
     def _deal(self, m: Module, width: int) -> None:
-        """Input slice -> the store of the engine whose turn it is -> gearbox -> engine.
+        """Input slice -> a chain of registers past the engines' stores -> gearbox -> engine.
 
-        The stores sit by their engines, spread over the part, so nothing but registers
-        crosses between them and the dealer: a write is decided here and made a clock later
-        from registers (the beat kept in ``w_data``, one per store's enable), and what a
-        gearbox takes comes back as a register (``taken``), counted a clock late.
+        The dealer decides which store a beat goes to; the beat then travels down a chain of
+        registers, one stage per engine, that never stalls, and the store of its engine takes
+        it from its own stage: each wire of the wide beat runs from one engine to the next,
+        not from the dealer to every store (a star of them did not route: ``docs/fpga.md``).
+        What a gearbox takes comes back to the dealer as one registered bit per engine.
         """
         ins = m.submodules.in_slice = register_slice(width)
         m.d.comb += [ins.w_data.eq(self.i.payload), ins.w_en.eq(self.i.valid),
                      self.i.ready.eq(ins.w_rdy)]
         beat = data.View(self.in_layout, ins.r_data)
         turn = Signal(self.engines, init=1)  # one-hot: the engine the current frame goes to
-        w_data = Signal(width)  # the beat being written, a clock after its decision
-        m.d.sync += w_data.eq(ins.r_data)
+        turn_at = Signal(range(self.engines))  # the same, as an index, for the chain
+        stages = [data.Signal(data.StructLayout({"valid": 1, "dest": range(self.engines),
+                                                 "beat": width}), name=f"deal{k}")
+                  for k in range(self.engines)]
         takes = []
         for k, e in enumerate(self._engines):
             store = m.submodules[f"store{k}"] = _Store(width, self.store_beats)
-            # `held`: beats decided for this store and not yet seen taken by its gearbox. It
-            # is never below what the store holds when a decided write lands (a write lands a
-            # clock after its decision, a take is seen a clock after it is made), and `room`,
-            # a register made from the count of the clock before, leaves a free entry for
-            # this clock's decision whatever that clock's count became: the store is never
-            # written full
+            # `held`: beats dealt to this store and not yet seen taken by its gearbox. A beat
+            # lands k + 1 clocks after it is dealt and a take is seen a clock after it is
+            # made, so `held` is never below what the store holds; `room`, a register made
+            # from the count of the clock before, leaves a free entry for this clock's deal
+            # whatever that clock's count became: the store is never written full
             held = Signal(range(self.store_beats + 1), name=f"held{k}")
             room = Signal(name=f"room{k}")
-            write = Signal(name=f"write{k}")
-            write_q = Signal(name=f"write{k}_q")
             taken = Signal(name=f"taken{k}")
-            m.d.comb += [write.eq(ins.r_rdy & turn[k] & room),
-                         store.w_data.eq(w_data), store.w_en.eq(write_q),
-                         store.w_keep.eq(write_q)]
-            m.d.sync += [write_q.eq(write), taken.eq(store.r.valid & store.r.ready),
-                         held.eq(_step(held, write, taken)),
+            here = stages[k]
+            lands = here.valid & (here.dest == k)
+            m.d.comb += [store.w_data.eq(here.beat), store.w_en.eq(lands),
+                         store.w_keep.eq(lands)]
+            m.d.sync += [taken.eq(store.r.valid & store.r.ready),
+                         held.eq(_step(held, ins.r_rdy & turn[k] & room, taken)),
                          room.eq(_le(held, self.store_beats - 2))]
             takes.append(turn[k] & room)
             self._gearbox(m, store.r, e.i, k)
+        dealt = ins.r_rdy & ins.r_en
         m.d.comb += ins.r_en.eq(reduce(or_, takes))
-        with m.If(ins.r_rdy & ins.r_en & beat.last):
-            m.d.sync += turn.eq(_rotate(turn))
+        m.d.sync += [stages[0].valid.eq(dealt), stages[0].dest.eq(turn_at),
+                     stages[0].beat.eq(ins.r_data)]
+        for k in range(1, self.engines):
+            m.d.sync += stages[k].eq(stages[k - 1])
+        with m.If(dealt & beat.last):
+            m.d.sync += [turn.eq(_rotate(turn)),
+                         turn_at.eq(Mux(turn_at == self.engines - 1, 0, turn_at + 1))]
 
     def _gearbox(self, m: Module, beats, port, k: int) -> None:
         """One engine's samples from its store's beats, one per clock, lane 0 first."""
@@ -218,25 +226,46 @@ class InterleavedDetect(wiring.Component):
             m.d.sync += j.eq(Mux(at_end, 0, j + 1))
 
     def _collect(self, m: Module) -> None:
-        """Each engine's result into a register slice by the engine, then in frame order into
-        the output slice: only registers cross between the engines and the collector."""
-        outs = m.submodules.out_slice = register_slice(PEAK_RESULT.size)
-        turn = Signal(self.engines, init=1)  # one-hot: the engine whose result is next
-        near = []
+        """The engines' results in frame order, down a chain of registers into the output
+        FIFO.
+
+        Stage ``k`` of the chain takes engine ``k``'s result, or else passes on what stage
+        ``k - 1`` held. Engine ``k`` may put its result in only while it holds the token and
+        stage ``k - 1`` is empty, and the token moves to engine ``k + 1`` as it does: so
+        results enter in frame order, and none overtakes another (a result always enters
+        behind the one before it). The chain never stalls: results enter only while the FIFO
+        has room for every stage's as well (``allow``, a register). Every wire runs from an
+        engine to its neighbour, or is one bit.
+        """
+        n = self.engines
+        depth = n + 8
+        fifo = m.submodules.out_fifo = SyncFIFOBuffered(width=PEAK_RESULT.size, depth=depth)
+        stages = [data.Signal(data.StructLayout({"valid": 1, "result": PEAK_RESULT}),
+                              name=f"collect{k}") for k in range(n)]
+        token = [Signal(init=int(k == 0), name=f"token{k}") for k in range(n)]
+        allow = Signal()  # the FIFO has room for one more result and the chain's
+        wrap = Signal()  # the last engine put its result in (the token goes back to the first)
+        puts = []
         for k, e in enumerate(self._engines):
-            sl = m.submodules[f"result_slice{k}"] = register_slice(PEAK_RESULT.size)
-            m.d.comb += [sl.w_data.eq(e.o.payload), sl.w_en.eq(e.o.valid),
-                         e.o.ready.eq(sl.w_rdy), sl.r_en.eq(turn[k] & outs.w_rdy)]
-            near.append(sl)
+            upstream_empty = ~stages[k - 1].valid if k else 1
+            m.d.comb += e.o.ready.eq(token[k] & allow & upstream_empty)
+            put = e.o.valid & e.o.ready
+            puts.append(put)
+            passing = stages[k - 1] if k else None
+            with m.If(put):
+                m.d.sync += [stages[k].valid.eq(1), stages[k].result.eq(e.o.payload)]
+            with m.Else():
+                m.d.sync += stages[k].eq(passing if passing is not None else 0)
+        for k in range(n):
+            arrives = puts[k - 1] if k else wrap
+            m.d.sync += token[k].eq((token[k] & ~puts[k]) | arrives)
+        m.d.sync += [wrap.eq(puts[-1]),
+                     allow.eq(_le(fifo.level, depth - n - 2))]
         m.d.comb += [
-            outs.w_data.eq(reduce(or_, (Mux(turn[k], sl.r_data, 0)
-                                        for k, sl in enumerate(near)))),
-            outs.w_en.eq(reduce(or_, (turn[k] & sl.r_rdy for k, sl in enumerate(near)))),
-            self.o.payload.eq(outs.r_data), self.o.valid.eq(outs.r_rdy),
-            outs.r_en.eq(self.o.ready),
+            fifo.w_data.eq(stages[-1].result), fifo.w_en.eq(stages[-1].valid),
+            self.o.payload.eq(fifo.r_data), self.o.valid.eq(fifo.r_rdy),
+            fifo.r_en.eq(self.o.ready),
         ]
-        with m.If(outs.w_en & outs.w_rdy):
-            m.d.sync += turn.eq(_rotate(turn))
 
     def _broadcast_coef(self, m: Module) -> None:
         """A write reaches every engine once: each takes it when it can, and it is taken from
