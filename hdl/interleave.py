@@ -14,14 +14,17 @@ Why. The ``lanes`` joins need trees across lanes (the detector's window statisti
 choice among lanes, the filter's per-lane template walk) that meet in the DSP rows: the 10-
 and 12-lane joins did not route on the LFE5U-85F (``docs/fpga.md``). The engines share
 nothing but the coefficient writes and the configuration, so each places as the one-lane join
-does. What it costs: DSPs ``engines x (taps_max + 2)``; one frame store per engine; the
+does, and the glue between them is two chains of registers from engine to engine (beats
+dealt down one, results collected down the other), so no wide wire spans the part. What it
+costs: DSPs ``engines x (taps_max + 2)``; one frame store per engine; the
 ``filtered`` payload (``y`` of every sample) is not kept, since frames leave the engines out
 of order in time (only the results are collected in order); the fed-back surface stays the
 one-lane join's, so the bank's first template switch may lie as shallow as
-:attr:`InterleavedDetect.min_bin_offset` (22 samples), not ``lanes`` times deeper.
+:attr:`InterleavedDetect.min_bin_offset` (17 samples at 8 taps, 22 at 64), not ``lanes``
+times deeper.
 
 Throughput. The input takes a beat per clock while the engine whose turn it is has room; an
-engine takes a frame of ``n`` samples in ``n + frame_gap_clocks`` clocks. With stores of at
+engine takes a frame of ``n`` samples in at most ``n + frame_gap_clocks`` clocks. With stores of at
 least a frame's beats each, frames of ``n`` samples stream at
 ``max(ceil(n / lanes), (n + frame_gap_clocks) / engines)`` clocks per frame
 (:func:`model.interleave.clocks_per_frame`, checked in Verilator by
@@ -92,8 +95,8 @@ class InterleavedDetect(wiring.Component):
     templates, taps : In
         ``K`` and ``L`` of the bank, as :class:`~hdl.detect.FilterDetect`.
     min_bin_offset : int
-        The one-lane join's bound (22 samples, or more with a lookahead): a bank is exact on
-        this build for ``bin_offset >= min_bin_offset``.
+        The one-lane join's bound (17 samples at 8 taps, 22 at 64, more with a lookahead): a
+        bank is exact on this build for ``bin_offset >= min_bin_offset``.
     frame_gap_clocks : int
         Clocks an engine spends on a frame beyond its samples (the detector's threshold
         wait).
@@ -103,11 +106,13 @@ class InterleavedDetect(wiring.Component):
 
     Notes
     -----
-    Latency: a frame's result leaves ``4 + n + `` the one-lane join's result latency after
-    its last beat is taken at the input at best (store, gearbox, the engine's ``n`` samples),
-    later when its engine is still busy with an earlier frame or an earlier frame's result
-    has not left. Results leave in frame order; a stalled ``o`` stalls the engines in turn
-    and then the input, and nothing is lost.
+    Latency: a frame's last beat reaches its engine's store ``k + 3`` clocks after the input
+    takes it (input slice, ``k + 1`` chain stages for engine ``k``); the engine then needs the
+    frame's ``n`` samples, one a clock, plus the one-lane join's result latency; the result
+    travels ``engines - k`` chain stages and the output FIFO. An engine still busy with an
+    earlier frame, or an earlier frame's result not yet collected, delays it. Results leave in
+    frame order; a stalled ``o`` fills the FIFO, then holds the engines, then the input, and
+    nothing is lost.
     """
 
     def __init__(self, lanes: int = 8, engines: int = 9, taps_max: int = 8,
