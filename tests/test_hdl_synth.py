@@ -34,6 +34,20 @@ class TestSynth:
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
             res["components"]["albcap_stitch"])
 
+    def test_stitch_in_context(self, tmp_path):
+        """In a shell of registers, placed in context: the clock on a global network (a
+        ``DCCA``), the streams through the shell, the static registers on pins of their own."""
+        r = synthesize("albcap_stitch", work_dir=tmp_path, context="in")
+        assert r["context"] == "in" and r["dsps"] == 1 and 40 < r["fmax_mhz"] < 600
+        log = (tmp_path / "nextpnr.log").read_text()
+        assert "promoting clock net" in log and "routing clock net" in log
+        v = (tmp_path / "albcap_stitch.v").read_text()
+        head = v[v.index("module albcap_stitch("):].split(";")[0]
+        assert "din" in head and "dout" in head and "cfg__sat_threshold" in head
+        assert "i__payload" not in head  # a stream: through the shell's registers
+        with pytest.raises(ValueError, match=r"context must be one of \('out', 'in'\), not 'x'"):
+            synthesize("albcap_stitch", context="x")
+
     def test_unknown_component(self):
         with pytest.raises(ValueError, match="unknown component 'albcap_fft'"):
             synthesize("albcap_fft")
@@ -60,6 +74,8 @@ def test_record_figures_merges_per_configuration(tmp_path):
     got = json.loads(path.read_text())["figures"]
     assert set(got) == {"a", "a[lanes=4,taps_max=32]"}
     assert figure_key("a", {"taps_max": 32, "lanes": 4}) == "a[lanes=4,taps_max=32]"
+    assert figure_key("a", {"lanes": 4}, "in") == "a[context=in,lanes=4]"
+    assert figure_key("a", None, "in") == "a[context=in]"
     assert got["a"]["fmax_mhz"] == 100.0 and got["a[lanes=4,taps_max=32]"]["fmax_mhz"] == 90.0
     with pytest.raises(ValueError, match="holds figures for"):
         record_figures(path, {"device": {**dev, "part": "LFE5U-25F"}, "components": {}})
