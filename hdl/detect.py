@@ -45,10 +45,25 @@ from .matched_filter import (
 )
 from .peak_detect import PEAK_RESULT, SURFACE_LATENCY, PeakDetect
 
-__all__ = ["MIN_BIN_OFFSET", "FilterDetect"]
+__all__ = ["MIN_BIN_OFFSET", "FilterDetect", "join_ports"]
 
 #: Smallest ``bin_offset`` for which the fed-back surface always arrives in time.
 MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1
+
+
+def join_ports(lanes: int) -> dict:
+    """The ports every filter + detector join has (:class:`FilterDetect`,
+    ``hdl.interleave.InterleavedDetect``): samples in, results out, the bank's writes and
+    size, the two register groups."""
+    return {
+        "i": In(stream.Signature(filter_in_layout(lanes))),
+        "o": Out(stream.Signature(PEAK_RESULT)),
+        "coef": In(stream.Signature(COEF_WRITE)),
+        "cfg_filter": In(config_signature("filter")),
+        "cfg_peak": In(config_signature("peak")),
+        "templates": In(range(K_MAX + 1), init=1),
+        "taps": In(range(L_MAX + 1), init=L_MAX),
+    }
 
 
 class FilterDetect(wiring.Component):
@@ -115,16 +130,8 @@ class FilterDetect(wiring.Component):
         self.min_bin_offset = self._filter.max_unsurfaced(self._detect.surface_latency) + 1
         #: clocks a frame costs beyond its beats (the detector's wait for its threshold)
         self.frame_gap_clocks = self._detect.threshold_bubble
-        super().__init__({
-            "i": In(stream.Signature(filter_in_layout(lanes))),
-            "y": Out(stream.Signature(filter_out_layout(lanes))),
-            "o": Out(stream.Signature(PEAK_RESULT)),
-            "coef": In(stream.Signature(COEF_WRITE)),
-            "cfg_filter": In(config_signature("filter")),
-            "cfg_peak": In(config_signature("peak")),
-            "templates": In(range(K_MAX + 1), init=1),
-            "taps": In(range(L_MAX + 1), init=L_MAX),
-        })
+        super().__init__({**join_ports(lanes),
+                          "y": Out(stream.Signature(filter_out_layout(lanes)))})
 
     def elaborate(self, platform):
         m = Module()

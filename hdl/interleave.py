@@ -37,17 +37,13 @@ from functools import reduce
 from operator import or_
 
 from amaranth.hdl import Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import data, wiring
 from amaranth.lib.fifo import SyncFIFOBuffered
-from amaranth.lib.wiring import In, Out
-
-from model.matched_filter import K_MAX, L_MAX
 
 from ._primitives import _le, _step, _Store
-from .detect import FilterDetect
+from .detect import FilterDetect, join_ports
 from .frame import GATE_LEN_MAX
-from .layouts import config_signature
-from .matched_filter import COEF_WRITE, filter_in_layout
+from .matched_filter import filter_in_layout
 from .peak_detect import PEAK_RESULT
 from .pipeline import register_slice
 
@@ -138,15 +134,7 @@ class InterleavedDetect(wiring.Component):
         #: samples a clock while the input runs free (the per-frame waits aside)
         self.samples_per_clock = min(lanes, engines)
         self.in_layout = filter_in_layout(lanes)
-        super().__init__({
-            "i": In(stream.Signature(self.in_layout)),
-            "o": Out(stream.Signature(PEAK_RESULT)),
-            "coef": In(stream.Signature(COEF_WRITE)),
-            "cfg_filter": In(config_signature("filter")),
-            "cfg_peak": In(config_signature("peak")),
-            "templates": In(range(K_MAX + 1), init=1),
-            "taps": In(range(L_MAX + 1), init=L_MAX),
-        })
+        super().__init__(join_ports(lanes))
 
     def elaborate(self, platform):
         m = Module()

@@ -86,6 +86,16 @@ def sample_source(frames, pattern) -> Source:
 CASE_TRAFFIC = {**TRAFFIC, "stalled": (PLAIN, Pattern("periodic", on=1, off=1999))}
 
 
+def run_checked(tmp_path, bank, cfg, frames, traffic_name, label):
+    """``run_case`` with the run's health and every result checked; the model's results."""
+    res = run_case(tmp_path, bank, cfg, frames, traffic_name, label)
+    assert not res.timeout, f"timed out after {res.clocks} clocks"
+    assert res.violations == {"o": 0}
+    results = interleaved_filter_and_detect(frames, bank, cfg, ENGINES)
+    check_results(res.sinks["o"], results)
+    return res, results
+
+
 def run_case(tmp_path, bank, cfg, frames, traffic_name, label):
     source, sink = CASE_TRAFFIC[traffic_name]
     return run(Design(InterleavedDetect, **PARAMS), tmp_path,
@@ -149,11 +159,7 @@ class TestConstructor:
 @pytest.mark.parametrize("traffic_name", list(CASE_TRAFFIC))
 def test_verilator(tmp_path, traffic_name):
     bank, cfg, frames = case()
-    res = run_case(tmp_path, bank, cfg, frames, traffic_name, "case")
-    assert not res.timeout, f"timed out after {res.clocks} clocks"
-    assert res.violations == {"o": 0}
-    results = interleaved_filter_and_detect(frames, bank, cfg, ENGINES)
-    check_results(res.sinks["o"], results)
+    _, results = run_checked(tmp_path, bank, cfg, frames, traffic_name, "case")
     assert sum(bool(r.surface.found) for r in results[:N_ECHO_FRAMES]) >= 4
     assert sum(bool(r.bottom.found) for r in results[:N_ECHO_FRAMES]) >= 2
 
@@ -163,11 +169,7 @@ def test_verilator_scene(tmp_path, traffic_name):
     """Simulated shots (frames of the scene's gate, longer than a store) with the survey bank:
     each engine finds the surface and the bottom, bit for bit."""
     bank, cfg, frames = scene_case()
-    res = run_case(tmp_path, bank, cfg, frames, traffic_name, "scene")
-    assert not res.timeout, f"timed out after {res.clocks} clocks"
-    assert res.violations == {"o": 0}
-    results = interleaved_filter_and_detect(frames, bank, cfg, ENGINES)
-    check_results(res.sinks["o"], results)
+    _, results = run_checked(tmp_path, bank, cfg, frames, traffic_name, "scene")
     assert all(bool(r.surface.found) and bool(r.bottom.found) for r in results)
     assert len({int(r.bottom.template) for r in results}) >= 2, "the template walk should run"
 
@@ -179,14 +181,7 @@ def test_verilator_rate(tmp_path):
     bank, cfg, _ = case()
     n, n_frames = 45, 48  # 15 beats: a frame fits a store of 16
     frames = [rng.integers(-2000, 2000, n).astype(np.int16) for _ in range(n_frames)]
-    res = run(Design(InterleavedDetect, **PARAMS), tmp_path,
-              sources={"coef": coef_source(bank), "i": sample_source(frames, PLAIN)},
-              sinks={"o": Sink(PEAK_RESULT, PLAIN)},
-              static={**cfg_ports(cfg, "filter", "cfg_filter"),
-                      **cfg_ports(cfg, "peak", "cfg_peak"),
-                      "templates": bank.K, "taps": bank.L},
-              label="interleave_rate")
-    check_results(res.sinks["o"], interleaved_filter_and_detect(frames, bank, cfg, ENGINES))
+    res, _ = run_checked(tmp_path, bank, cfg, frames, "plain", "rate")
     beats = -(-n // LANES)
     first_beat = np.asarray(res.sources["i"]["clock"])[::beats]
     a, b = 3 * ENGINES, n_frames - ENGINES  # past the start, before the drain
