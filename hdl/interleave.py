@@ -158,7 +158,10 @@ class InterleavedDetect(wiring.Component):
         registers, one stage per engine, that never stalls, and the store of its engine takes
         it from its own stage: each wire of the wide beat runs from one engine to the next,
         not from the dealer to every store (a star of them did not route: ``docs/fpga.md``).
-        What a gearbox takes comes back to the dealer as one registered bit per engine.
+        The dealer keeps its own count of each store's beats (``held``: dealt and not yet
+        seen taken), so the decision to deal reads registers beside it only; what a gearbox
+        takes comes back as one bit, registered at its engine and again at the dealer, so the
+        wire across the part runs from a flip-flop to a flip-flop.
         """
         ins = m.submodules.in_slice = register_slice(width)
         m.d.comb += [ins.w_data.eq(self.i.payload), ins.w_en.eq(self.i.valid),
@@ -169,27 +172,29 @@ class InterleavedDetect(wiring.Component):
         stages = [data.Signal(data.StructLayout({"valid": 1, "dest": range(self.engines),
                                                  "beat": width}), name=f"deal{k}")
                   for k in range(self.engines)]
+        dealt = ins.r_rdy & ins.r_en
         takes = []
         for k, e in enumerate(self._engines):
             store = m.submodules[f"store{k}"] = _Store(width, self.store_beats)
-            # `held`: beats dealt to this store and not yet seen taken by its gearbox. A beat
-            # lands k + 1 clocks after it is dealt and a take is seen a clock after it is
-            # made, so `held` is never below what the store holds; `room`, a register made
-            # from the count of the clock before, leaves a free entry for this clock's deal
-            # whatever that clock's count became: the store is never written full
+            # `held` (at the dealer): beats dealt to this store and not yet seen taken. A
+            # beat lands k + 1 clocks after it is dealt and a take reaches the dealer two
+            # clocks after it is made, so `held` is never below what the store holds; `room`,
+            # a register made from the count of the clock before, leaves a free entry for
+            # this clock's deal whatever that clock's count became: the store is never
+            # written full
             held = Signal(range(self.store_beats + 1), name=f"held{k}")
             room = Signal(name=f"room{k}")
-            taken = Signal(name=f"taken{k}")
+            taken = Signal(name=f"taken{k}")  # at the engine
+            seen = Signal(name=f"taken_seen{k}")  # at the dealer
             here = stages[k]
             lands = here.valid & (here.dest == k)
             m.d.comb += [store.w_data.eq(here.beat), store.w_en.eq(lands),
                          store.w_keep.eq(lands)]
-            m.d.sync += [taken.eq(store.r.valid & store.r.ready),
-                         held.eq(_step(held, ins.r_rdy & turn[k] & room, taken)),
+            m.d.sync += [taken.eq(store.r.valid & store.r.ready), seen.eq(taken),
+                         held.eq(_step(held, dealt & turn[k], seen)),
                          room.eq(_le(held, self.store_beats - 2))]
             takes.append(turn[k] & room)
             self._gearbox(m, store.r, e.i, k)
-        dealt = ins.r_rdy & ins.r_en
         m.d.comb += ins.r_en.eq(reduce(or_, takes))
         m.d.sync += [stages[0].valid.eq(dealt), stages[0].dest.eq(turn_at),
                      stages[0].beat.eq(ins.r_data)]
@@ -235,21 +240,31 @@ class InterleavedDetect(wiring.Component):
         stage ``k - 1`` is empty, and the token moves to engine ``k + 1`` as it does: so
         results enter in frame order, and none overtakes another (a result always enters
         behind the one before it). The chain never stalls: results enter only while the FIFO
-        has room for every stage's as well (``allow``, a register). Every wire runs from an
-        engine to its neighbour, or is one bit.
+        has room for every result in flight (``allow``). ``allow`` goes down a chain of its
+        own, engine ``k`` reading stage ``k``, and the token comes back from the last engine
+        to the first through two registers: every wire runs from an engine to its neighbour,
+        or from a flip-flop to a flip-flop. (``allow`` from one register to every engine's
+        ``o.ready``, which the detector's next decision reads, put a wire across the part in
+        front of logic.)
+
+        Room: the token lets one result in a clock at most, and the chain holds ``n`` at
+        most. Engine ``k`` reads ``allow`` made from the FIFO's level of ``k + 1`` clocks
+        before, so with a result it puts in, the FIFO and the chain hold at most that level,
+        the ``n`` then in the chain and the ``k + 2`` put in since: ``level + 2 n + 1`` at
+        most, and ``allow`` is ``level <= depth - 2 n - 1``.
         """
         n = self.engines
-        depth = n + 8
+        depth = 2 * n + 8
         fifo = m.submodules.out_fifo = SyncFIFOBuffered(width=PEAK_RESULT.size, depth=depth)
         stages = [data.Signal(data.StructLayout({"valid": 1, "result": PEAK_RESULT}),
                               name=f"collect{k}") for k in range(n)]
         token = [Signal(init=int(k == 0), name=f"token{k}") for k in range(n)]
-        allow = Signal()  # the FIFO has room for one more result and the chain's
-        wrap = Signal()  # the last engine put its result in (the token goes back to the first)
+        allow = [Signal(name=f"allow{k}") for k in range(n)]
+        wrap = [Signal(name=f"wrap{j}") for j in range(2)]  # the last engine put its result in
         puts = []
         for k, e in enumerate(self._engines):
             upstream_empty = ~stages[k - 1].valid if k else 1
-            m.d.comb += e.o.ready.eq(token[k] & allow & upstream_empty)
+            m.d.comb += e.o.ready.eq(token[k] & allow[k] & upstream_empty)
             put = e.o.valid & e.o.ready
             puts.append(put)
             passing = stages[k - 1] if k else None
@@ -258,10 +273,11 @@ class InterleavedDetect(wiring.Component):
             with m.Else():
                 m.d.sync += stages[k].eq(passing if passing is not None else 0)
         for k in range(n):
-            arrives = puts[k - 1] if k else wrap
+            arrives = puts[k - 1] if k else wrap[-1]
             m.d.sync += token[k].eq((token[k] & ~puts[k]) | arrives)
-        m.d.sync += [wrap.eq(puts[-1]),
-                     allow.eq(_le(fifo.level, depth - n - 2))]
+        m.d.sync += [wrap[0].eq(puts[-1]), wrap[1].eq(wrap[0]),
+                     allow[0].eq(_le(fifo.level, depth - 2 * n - 1)),
+                     *(allow[k].eq(allow[k - 1]) for k in range(1, n))]
         m.d.comb += [
             fifo.w_data.eq(stages[-1].result), fifo.w_en.eq(stages[-1].valid),
             self.o.payload.eq(fifo.r_data), self.o.valid.eq(fifo.r_rdy),
@@ -269,19 +285,19 @@ class InterleavedDetect(wiring.Component):
         ]
 
     def _broadcast_coef(self, m: Module) -> None:
-        """A write reaches every engine once, from a register of its own: ``coef`` -> a
-        register per engine (``valid``; the payload one register for all) -> the engine,
-        which takes it when it can. A new write is taken from ``coef`` when every engine is
-        empty or takes its current one. The filter gates its input with its ``coef.valid``,
-        and from a shared flag (``coef.valid & ~done``) into that gate was the 3 x 3 build's
-        worst path once the gearbox had its slice (8.4 ns, 119.1 MHz)."""
-        payload = Signal.like(self.coef.payload, name="coef_q")
-        held = [Signal(name=f"coef_q_valid{k}") for k in range(self.engines)]
-        free = [~held[k] | e.coef.ready for k, e in enumerate(self._engines)]
-        m.d.comb += self.coef.ready.eq(reduce(lambda a, b: a & b, free))
-        take = self.coef.valid & self.coef.ready
-        with m.If(take):
-            m.d.sync += payload.eq(self.coef.payload)
+        """A write reaches every engine down a chain of registers, one stage per engine, that
+        never stalls: engine ``k`` sees it ``k + 1`` clocks after ``coef`` takes it, and takes
+        it in that clock (``hdl.matched_filter.MatchedFilter`` takes a write at once: its
+        ``coef.ready`` is 1), so ``coef.ready`` is 1 too. A wire from one register to every
+        engine's coefficient memory would span the part; the filter gates its input with its
+        ``coef.valid``, and from a shared flag into that gate was the 3 x 3 build's worst
+        path once the gearbox had its slice (8.4 ns, 119.1 MHz)."""
+        stages = [data.Signal(data.StructLayout({"valid": 1,
+                                                 "write": self.coef.payload.shape()}),
+                              name=f"coef{k}") for k in range(self.engines)]
+        m.d.comb += self.coef.ready.eq(1)
+        m.d.sync += [stages[0].valid.eq(self.coef.valid), stages[0].write.eq(self.coef.payload)]
         for k, e in enumerate(self._engines):
-            m.d.comb += [e.coef.payload.eq(payload), e.coef.valid.eq(held[k])]
-            m.d.sync += held[k].eq(take | (held[k] & ~e.coef.ready))
+            if k:
+                m.d.sync += stages[k].eq(stages[k - 1])
+            m.d.comb += [e.coef.payload.eq(stages[k].write), e.coef.valid.eq(stages[k].valid)]

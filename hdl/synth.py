@@ -219,7 +219,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     Returns
     -------
     dict
-        ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds`` and the device.
+        ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds``, the parameters and
+        ``worst_path`` (:func:`worst_path`: the path that holds ``fmax_mhz``).
     """
     from amaranth.back import verilog
 
@@ -284,8 +285,48 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "target_mhz": target_mhz,
         "router": router,
         "context": context,
+        "worst_path": worst_path(report),
         "seconds": round(time.perf_counter() - t0, 1),
     }
+
+
+def _cell(end: dict) -> str:
+    """A path end's cell, without the suffixes Yosys and nextpnr add to a register's name
+    (``core.engine0.filter.k_ev_TRELLIS_FF_Q_3`` -> ``core.engine0.filter.k_ev``)."""
+    name = end["cell"]
+    for mark in ("_TRELLIS", "$CCU2", "_LUT4", "_CCU2C", "_DP16KD", "_MULT18X18D"):
+        if mark in name:
+            name = name[:name.index(mark)]
+    return name
+
+
+def worst_path(report: dict) -> dict | None:
+    """The worst register-to-register path of nextpnr's ``--report`` JSON, summed up.
+
+    nextpnr lists one critical path per pair of clock edges (``critical_paths``), each a list
+    of clock-to-out, logic, routing and setup steps with their delays (ns); the pairs with
+    ``<async>`` (from or to an unconstrained pin: the static registers in context) do not
+    set fmax and are left out. Returns ``{"ns", "routing_ns", "from", "to",
+    "logic_steps"}`` for the longest, ``from`` and ``to`` the start and end cells (names as
+    in the netlist, e.g. ``core.engine3.detect.go``), or None when the report has no such
+    path (nextpnr gives none without routing). What a figure of fmax alone does not say:
+    which path holds it, and whether wires or logic do.
+    """
+    best = None
+    for cp in report.get("critical_paths", []):
+        steps = cp.get("path", [])
+        if not steps or "<async>" in (cp.get("from"), cp.get("to")):
+            continue
+        total = sum(st["delay"] for st in steps)
+        if best is None or total > best[0]:
+            best = (total, steps)
+    if best is None:
+        return None
+    total, steps = best
+    return {"ns": round(total, 2),
+            "routing_ns": round(sum(st["delay"] for st in steps if st["type"] == "routing"), 2),
+            "from": _cell(steps[0]["from"]), "to": _cell(steps[-1]["to"]),
+            "logic_steps": sum(st["type"] == "logic" for st in steps)}
 
 
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
@@ -339,11 +380,16 @@ def _short(name: str) -> str:
 
 
 def print_table(res: dict) -> None:
-    """The figures as a plain table."""
+    """The figures as a plain table, each component's worst path under it."""
     d = res["device"]
-    print(f"{d['part']} speed {d['speed']}, out of context")
-    print(f"{'component':>16} {'fmax MHz':>9} {'LUTs':>7} {'FFs':>7} {'DSPs':>5} {'BRAMs':>6} "
-          f"{'lanes':>5} {'MS/s':>7}")
+    print(f"{d['part']} speed {d['speed']}")
+    print(f"{'component':>16} {'context':>7} {'fmax MHz':>9} {'LUTs':>7} {'FFs':>7} {'DSPs':>5} "
+          f"{'BRAMs':>6} {'lanes':>5} {'MS/s':>7}")
     for n, r in res["components"].items():
-        print(f"{_short(n):>16} {r['fmax_mhz']:9.1f} {r['luts']:7d} {r['ffs']:7d} "
-              f"{r['dsps']:5d} {r['brams']:6d} {r['lanes']:5d} {r['samples_per_s'] / 1e6:7.1f}")
+        print(f"{_short(n):>16} {r.get('context', 'out'):>7} {r['fmax_mhz']:9.1f} "
+              f"{r['luts']:7d} {r['ffs']:7d} {r['dsps']:5d} {r['brams']:6d} {r['lanes']:5d} "
+              f"{r['samples_per_s'] / 1e6:7.1f}")
+        w = r.get("worst_path")
+        if w:
+            print(f"{'':>16} worst path {w['from']} -> {w['to']}: {w['ns']} ns, "
+                  f"{w['routing_ns']} of it routing, {w['logic_steps']} logic steps")

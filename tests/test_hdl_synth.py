@@ -5,11 +5,11 @@ import json
 import pytest
 
 from firmware_host.cli import main
-from hdl.synth import figure_key, record_figures, synthesize
+from hdl.synth import DEVICE, figure_key, print_table, record_figures, synthesize
 
 
 class TestSynth:
-    def test_stitch_figures(self, tmp_path):
+    def test_stitch_figures(self, tmp_path, capsys):
         r = synthesize("albcap_stitch", work_dir=tmp_path)
         # the gain-ratio multiplier maps onto one ECP5 DSP block; the rest is a few LUTs
         assert r["dsps"] == 1 and r["brams"] == 0
@@ -19,6 +19,15 @@ class TestSynth:
         assert (tmp_path / "report.json").exists() and (tmp_path / "albcap_stitch.v").exists()
         assert r["router"] == "router1"
         assert "Max frequency" in (tmp_path / "nextpnr.log").read_text()
+        # the path that holds fmax: its delay is the clock period fmax gives
+        w = r["worst_path"]
+        assert w["from"] and w["to"] and "TRELLIS" not in w["from"] + w["to"], w
+        assert 0 < w["routing_ns"] < w["ns"] and w["logic_steps"] >= 1
+        assert 1000 / w["ns"] == pytest.approx(r["fmax_mhz"], rel=0.05)
+        print_table({"device": DEVICE, "components": {"albcap_stitch": r}})
+        table = capsys.readouterr().out
+        assert f"worst path {w['from']} -> {w['to']}: {w['ns']} ns" in table
+        assert table.split("\n")[2].split()[:2] == ["stitch", "out"]
 
     def test_command_json(self, capsys, tmp_path):
         out = tmp_path / "fpga.json"
