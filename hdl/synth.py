@@ -72,11 +72,12 @@ class PortShell(Elaboratable):
     the component's streams from one shift register, fed by the pin ``din``, and folds every
     output into the pin ``dout`` through registers and a registered XOR tree: nothing is
     constant, nothing is left unused, and every path the shell adds runs from a register to
-    a register. The static inputs (configuration registers, ``templates``, ``taps``) stay
-    pins of their own: paths from a pin are not timed, as out of context, since the designs
-    treat them as quasi-static (a register write between frames). The shell's clock domain
-    has no reset (as out of context, where the reset port is never routed): the figures are
-    the logic's, not a reset network's.
+    a register. The static inputs (:meth:`is_static`: the register groups, ``templates``,
+    ``taps``, ``bank_id``) stay pins of their own: paths from a pin are not timed, as out of
+    context, since the designs treat them as quasi-static (a register write between frames).
+    Every other port, a single control or status signal too, goes through the shell. The
+    shell's clock domain has no reset (as out of context, where the reset port is never
+    routed): the figures are the logic's, not a reset network's.
 
     Attributes
     ----------
@@ -91,7 +92,6 @@ class PortShell(Elaboratable):
 
     def __init__(self, core):
         from amaranth.hdl import ClockDomain, Value
-        from amaranth.lib import stream
 
         self.core = core
         # no reset network: in context a reset from a pin is a net to every flip-flop's LSR
@@ -102,15 +102,28 @@ class PortShell(Elaboratable):
         self.din, self.dout = Signal(name="din"), Signal(name="dout")
         self.static, self._ports = [], []  # (path, stream value) or (path, (pin, value))
         for path, _, value in core.signature.flatten(core):
-            top = core.signature.members[path[0]]
-            streamed = top.is_signature and isinstance(top.signature, stream.Signature)
             v = Value.cast(value)
-            if streamed:
+            if not self.is_static(path[0]):
                 self._ports.append((path, v))
             else:
                 pin = Signal(len(v), name="__".join(str(p) for p in path))
                 self.static.append(pin)
                 self._ports.append((path, (pin, v)))
+
+    #: Ports the shell leaves on pins, untimed: the register groups and the bank's shape,
+    #: which are written between frames. Every other port (the streams, and single control
+    #: and status signals such as the pipeline's ``bank_busy`` and ``frame_idle``) is timed
+    #: through the shell's registers.
+    STATIC_PREFIXES, STATIC_NAMES = ("cfg_",), ("templates", "taps", "bank_id")
+
+    def is_static(self, name: str) -> bool:
+        """Whether the core's port ``name`` is a static input (an input left on a pin)."""
+        from amaranth.lib.wiring import Flow
+
+        member = self.core.signature.members[name]
+        if member.is_signature:
+            return name.startswith(self.STATIC_PREFIXES)
+        return member.flow == Flow.In and name in self.STATIC_NAMES
 
     def elaborate(self, platform):
         from amaranth.hdl import Cat, Module
