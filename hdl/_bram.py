@@ -30,23 +30,37 @@ from __future__ import annotations
 from amaranth.hdl import ClockSignal, Elaboratable, Instance, Module, Signal
 from amaranth.lib import memory
 
-__all__ = ["BlockRAM"]
+__all__ = ["DEEPEST", "BlockRAM"]
 
 #: ``DP16KD`` configurations as (data width, words): 18 kbit each, one port's view.
 _CONFIGS = ((18, 1024), (9, 2048), (4, 4096), (2, 8192), (1, 16384))
+#: Words of the deepest configuration (16 384 x 1): a memory of ``n`` words needs at least
+#: ``ceil(n / DEEPEST)`` banks.
+DEEPEST = max(words for _, words in _CONFIGS)
 #: Memories up to this many entries stay plain (Yosys makes LUT RAM of them, no block RAM).
 _LUTRAM_MAX = 64
 
 
-def _tiling(width: int, depth: int):
-    """The ``DP16KD`` configuration that takes fewest blocks (then fewest banks):
-    ``(block width, block words, columns, banks)``."""
+def _tiling(width: int, depth: int, max_banks: int | None = None):
+    """The ``DP16KD`` configuration that takes fewest blocks (then fewest banks), of those
+    with at most ``max_banks`` banks: ``(block width, block words, columns, banks)``.
+
+    Banks cost a multiplexer after the blocks' output registers, on the read's path to its
+    consumer: 16 banks (the packetizer's 32 768-byte FIFO in 2 048 x 9 blocks) put the bank
+    select, a 16-way mux and the routing from 16 blocks in front of the consumer's register,
+    the pipeline's worst path in context (7.14 ns). ``max_banks = 2`` tiles that FIFO in
+    16 384 x 1 blocks instead: 18 blocks for 16, a 2-way mux."""
     best = None
     for bw, bd in _CONFIGS:
         cols, banks = -(-width // bw), -(-depth // bd)
+        if max_banks is not None and banks > max_banks:
+            continue
         key = (cols * banks, banks)
         if best is None or key < best[0]:
             best = (key, (bw, bd, cols, banks))
+    if best is None:
+        raise ValueError(f"{depth} words fit in no tiling of at most {max_banks} banks (a "
+                         f"block holds at most {_CONFIGS[-1][1]} words)")
     return best[1]
 
 
@@ -59,6 +73,9 @@ class BlockRAM(Elaboratable):
         Bits per word.
     depth : int, >= 1
         Words.
+    max_banks : int, optional
+        At most this many banks of blocks on the ECP5 (:func:`_tiling`; default: whatever
+        takes the fewest blocks).
 
     Attributes
     ----------
@@ -90,11 +107,14 @@ class BlockRAM(Elaboratable):
     hold it). Registers are not reset.
     """
 
-    def __init__(self, width: int, depth: int):
-        for name, v in (("width", width), ("depth", depth)):
+    def __init__(self, width: int, depth: int, max_banks: int | None = None):
+        for name, v in (("width", width), ("depth", depth), ("max_banks", max_banks)):
+            if v is None and name == "max_banks":
+                continue
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, not {v!r}")
-        self.width, self.depth = width, depth
+        _tiling(width, depth, max_banks)  # a shape it cannot tile fails here, not later
+        self.width, self.depth, self.max_banks = width, depth, max_banks
         self.w_addr = Signal(range(depth))
         self.w_data = Signal(width)
         self.w_en = Signal()
@@ -122,7 +142,7 @@ class BlockRAM(Elaboratable):
 
     def _ecp5(self):
         m = Module()
-        bw, bd, cols, banks = _tiling(self.width, self.depth)
+        bw, bd, cols, banks = _tiling(self.width, self.depth, self.max_banks)
         shift = (16384 // bd).bit_length() - 1  # word address -> bit address
         lo = (bd - 1).bit_length()  # word address bits within a block
         w_bank, r_bank = self.w_addr[lo:], self.r_addr[lo:]

@@ -207,6 +207,9 @@ class _Store(wiring.Component):
     depth : int, >= 1
         Entries it can hold, both read stages included; the memory is ``depth`` rounded up to
         a power of two (at least 2).
+    max_banks : int, optional
+        For the block RAM (:class:`hdl._bram.BlockRAM`): at most this many banks of blocks,
+        so at most a ``max_banks``-way mux between the blocks and ``r.payload``.
 
     Attributes
     ----------
@@ -227,8 +230,8 @@ class _Store(wiring.Component):
     sustained while ``r.ready`` stays high.
     """
 
-    def __init__(self, width: int, depth: int):
-        self.width, self.depth = width, depth
+    def __init__(self, width: int, depth: int, max_banks: int | None = None):
+        self.width, self.depth, self.max_banks = width, depth, max_banks
         super().__init__({"w_data": In(width), "w_en": In(1), "w_keep": In(1),
                           "r": Out(stream.Signature(width))})
 
@@ -241,7 +244,7 @@ class _Store(wiring.Component):
         # an entry as held until it leaves `r`. So a write never lands on the slot of an entry
         # in the first stage, and never on the slot read at that clock (that would take `size`
         # slots in use and one more coming): the read port need not see the write port.
-        ram = m.submodules.ram = BlockRAM(self.width, size)
+        ram = m.submodules.ram = BlockRAM(self.width, size, self.max_banks)
         w_ptr = Signal(range(size))
         r_ptr = Signal(range(size))
         count = Signal(range(self.depth + 1))  # entries in the memory (read stages not)

@@ -47,7 +47,26 @@ def test_tiling(width, depth, tiling):
     assert _tiling(width, depth) == tiling
 
 
-@pytest.mark.parametrize("kwargs", [{"width": 0, "depth": 4}, {"width": 4, "depth": True}])
+@pytest.mark.parametrize("width, depth, max_banks, tiling", [
+    (9, 32768, 2, (1, 16384, 9, 2)),  # the packetizer's byte FIFO: 18 blocks, a 2-way mux
+    (9, 32768, 16, (9, 2048, 1, 16)),
+    (42, 4096, 1, (4, 4096, 11, 1)),
+    (9, 65536, 4, (1, 16384, 9, 4)),
+])
+def test_tiling_max_banks(width, depth, max_banks, tiling):
+    assert _tiling(width, depth, max_banks) == tiling
+
+
+def test_tiling_too_deep_for_its_banks():
+    message = "^65536 words fit in no tiling of at most 2 banks"
+    with pytest.raises(ValueError, match=message):
+        _tiling(9, 65536, 2)
+    with pytest.raises(ValueError, match=message):
+        BlockRAM(9, 65536, max_banks=2)  # at construction, not at elaboration
+
+
+@pytest.mark.parametrize("kwargs", [{"width": 0, "depth": 4}, {"width": 4, "depth": True},
+                                    {"width": 4, "depth": 4, "max_banks": 0}])
 def test_bad_parameters(kwargs):
     name = next(k for k, v in kwargs.items() if v is True or v == 0)
     with pytest.raises(ValueError, match=f"^{name} must be a positive integer, not "):
@@ -201,15 +220,16 @@ class _AsEcp5(Elaboratable):
 class BramTwin(wiring.Component):
     """Two block RAMs of one shape on the same inputs: ``hw`` elaborated for the ECP5."""
 
-    def __init__(self, width, depth):
-        self.width, self.depth = width, depth
+    def __init__(self, width, depth, max_banks=None):
+        self.width, self.depth, self.max_banks = width, depth, max_banks
         super().__init__({"w_addr": In(range(depth)), "w_data": In(width), "w_en": In(1),
                           "r_addr": In(range(depth)), "r_en": In(1), "r_oce": In(1),
                           "hw_data": Out(width), "plain_data": Out(width)})
 
     def elaborate(self, platform):
         m = Module()
-        hw, plain = BlockRAM(self.width, self.depth), BlockRAM(self.width, self.depth)
+        hw = BlockRAM(self.width, self.depth, self.max_banks)
+        plain = BlockRAM(self.width, self.depth, self.max_banks)
         m.submodules.hw = _AsEcp5(hw)
         m.submodules.plain = plain
         for ram in (hw, plain):
@@ -225,17 +245,19 @@ class _TwinDesign(Design):
         return to_verilog(self.component(**dict(self.params)), self.name) + DP16KD_MODEL
 
 
-@pytest.mark.parametrize("width, depth", [(42, 4096), (9, 32768), (24, 4096), (24, 768),
-                                          (2, 20000)])
-def test_ecp5_against_plain(tmp_path, width, depth):
+@pytest.mark.parametrize("width, depth, max_banks", [
+    (42, 4096, None), (9, 32768, None), (9, 32768, 2), (24, 4096, None), (24, 768, None),
+    (2, 20000, None)])
+def test_ecp5_against_plain(tmp_path, width, depth, max_banks):
     from cocotb_tools.check_results import get_results
     from cocotb_tools.runner import get_runner
 
-    design = _TwinDesign(BramTwin, width=width, depth=depth)
+    design = _TwinDesign(BramTwin, width=width, depth=depth,
+                         **({"max_banks": max_banks} if max_banks else {}))
     build_dir = build(design)
     if str(BENCH_DIR) not in sys.path:
         sys.path.insert(0, str(BENCH_DIR))  # the runner hands sys.path to the simulator
-    block = _tiling(width, depth)[1]
+    block = _tiling(width, depth, max_banks)[1]
     results = tmp_path / "results.xml"
     try:
         get_runner("verilator").test(
