@@ -110,10 +110,10 @@ class PortShell(Elaboratable):
                 self.static.append(pin)
                 self._ports.append((path, (pin, v)))
 
-    #: Ports the shell leaves on pins, untimed: the register groups and the bank's shape,
-    #: which are written between frames. Every other port (the streams, and single control
-    #: and status signals such as the pipeline's ``bank_busy`` and ``frame_idle``) is timed
-    #: through the shell's registers.
+    #: Ports the shell leaves on pins, untimed: the register groups (``cfg``, ``cfg_*``) and
+    #: the bank's shape, which are written between frames. Every other port (the streams,
+    #: and single control and status signals such as the pipeline's ``bank_busy`` and
+    #: ``frame_idle``) is timed through the shell's registers.
     STATIC_PREFIXES, STATIC_NAMES = ("cfg_",), ("templates", "taps", "bank_id")
 
     def is_static(self, name: str) -> bool:
@@ -121,8 +121,8 @@ class PortShell(Elaboratable):
         from amaranth.lib.wiring import Flow
 
         member = self.core.signature.members[name]
-        if member.is_signature:
-            return name.startswith(self.STATIC_PREFIXES)
+        if member.is_signature:  # a stage's own `cfg`, or a join's `cfg_filter`, ...
+            return name == "cfg" or name.startswith(self.STATIC_PREFIXES)
         return member.flow == Flow.In and name in self.STATIC_NAMES
 
     def elaborate(self, platform):
