@@ -86,7 +86,8 @@ class InterleavedDetect(wiring.Component):
     o : Out(stream.Signature(PEAK_RESULT))
         One result per frame, in frame order.
     coef : In(stream.Signature(COEF_WRITE))
-        Coefficient writes, given to every engine (each filter takes a write at once).
+        Coefficient writes, always ready; engine ``k`` takes each ``k + 1`` clocks later, from
+        a chain of registers (each filter takes a write at once).
     cfg_filter, cfg_peak : In(config_signature(...))
     templates, taps : In
         ``K`` and ``L`` of the bank, as :class:`~hdl.detect.FilterDetect`.
