@@ -60,7 +60,7 @@ def _tiling(width: int, depth: int, max_banks: int | None = None):
             best = (key, (bw, bd, cols, banks))
     if best is None:
         raise ValueError(f"{depth} words fit in no tiling of at most {max_banks} banks (a "
-                         f"block holds at most {_CONFIGS[-1][1]} words)")
+                         f"block holds at most {DEEPEST} words)")
     return best[1]
 
 
@@ -108,9 +108,8 @@ class BlockRAM(Elaboratable):
     """
 
     def __init__(self, width: int, depth: int, max_banks: int | None = None):
-        for name, v in (("width", width), ("depth", depth), ("max_banks", max_banks)):
-            if v is None and name == "max_banks":
-                continue
+        checked = (("width", width), ("depth", depth), ("max_banks", max_banks))
+        for name, v in checked[:2] if max_banks is None else checked:
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, not {v!r}")
         _tiling(width, depth, max_banks)  # a shape it cannot tile fails here, not later

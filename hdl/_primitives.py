@@ -235,9 +235,15 @@ class _Store(wiring.Component):
         super().__init__({"w_data": In(width), "w_en": In(1), "w_keep": In(1),
                           "r": Out(stream.Signature(width))})
 
+    @staticmethod
+    def memory_words(depth: int) -> int:
+        """Words of the memory behind a store of ``depth`` entries: ``depth`` rounded up to
+        a power of two, at least 2."""
+        return 1 << max(1, (depth - 1).bit_length())
+
     def elaborate(self, platform):
         m = Module()
-        size = 1 << max(1, (self.depth - 1).bit_length())
+        size = self.memory_words(self.depth)
         # The slots in use are those of the entries in the memory and of the one in the first
         # read stage (its word is in the block's latch, which is not specified to survive a
         # rewrite of its address): at most `depth` <= `size` of them, because the writer counts

@@ -165,8 +165,7 @@ class FramePacketizer(wiring.Component):
         # blocks in as few banks as the deepest block (16 384 x 1) allows: the 16-way bank mux
         # of the fewest blocks (2 048 x 9) was the pipeline's worst path in context, from the
         # bank select to the consumer (7.14 ns); two banks cost 18 blocks instead of 16.
-        size = 1 << max(1, (self.capacity - 1).bit_length())  # the store's memory, words
-        banks = max(2, size // DEEPEST)
+        banks = max(2, _Store.memory_words(self.capacity) // DEEPEST)
         fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity, max_banks=banks)
         # The payload buffer is read through the block RAM's two registers, advanced together
         # (`adv`), two words ahead of the one sent: a read straight out of the block was

@@ -92,6 +92,7 @@ class PortShell(Elaboratable):
 
     def __init__(self, core):
         from amaranth.hdl import ClockDomain, Value
+        from amaranth.lib.wiring import Flow
 
         self.core = core
         # no reset network: in context a reset from a pin is a net to every flip-flop's LSR
@@ -100,21 +101,22 @@ class PortShell(Elaboratable):
         # join routes in 39 s at 131.1 MHz (out of context: 129.3 MHz)
         self.domain = ClockDomain("sync", reset_less=True)
         self.din, self.dout = Signal(name="din"), Signal(name="dout")
-        self.static, self._ports = [], []  # (path, stream value) or (path, (pin, value))
-        for path, _, value in core.signature.flatten(core):
+        self.static = []
+        self._pinned, self._ins, self._outs = [], [], []  # (pin, port); ports; ports
+        for path, member, value in core.signature.flatten(core):
             v = Value.cast(value)
-            if not self.is_static(path[0]):
-                self._ports.append((path, v))
-            else:
+            if self.is_static(path[0]):
                 pin = Signal(len(v), name="__".join(str(p) for p in path))
                 self.static.append(pin)
-                self._ports.append((path, (pin, v)))
+                self._pinned.append((pin, v))
+            else:
+                (self._ins if member.flow == Flow.In else self._outs).append(v)
 
     #: Ports the shell leaves on pins, untimed: the register groups (``cfg``, ``cfg_*``) and
     #: the bank's shape, which are written between frames. Every other port (the streams,
     #: and single control and status signals such as the pipeline's ``bank_busy`` and
     #: ``frame_idle``) is timed through the shell's registers.
-    STATIC_PREFIXES, STATIC_NAMES = ("cfg_",), ("templates", "taps", "bank_id")
+    STATIC_PREFIX, STATIC_NAMES = "cfg", ("templates", "taps", "bank_id")
 
     def is_static(self, name: str) -> bool:
         """Whether the core's port ``name`` is a static input (an input left on a pin)."""
@@ -122,25 +124,17 @@ class PortShell(Elaboratable):
 
         member = self.core.signature.members[name]
         if member.is_signature:  # a stage's own `cfg`, or a join's `cfg_filter`, ...
-            return name == "cfg" or name.startswith(self.STATIC_PREFIXES)
+            return name.startswith(self.STATIC_PREFIX)
         return member.flow == Flow.In and name in self.STATIC_NAMES
 
     def elaborate(self, platform):
         from amaranth.hdl import Cat, Module
-        from amaranth.lib.wiring import Flow
 
         m = Module()
         m.domains.sync = self.domain
         m.submodules.core = self.core
-        ins, outs = [], []
-        flows = {path: member.flow for path, member, _ in self.core.signature.flatten(self.core)}
-        for path, v in self._ports:
-            if isinstance(v, tuple):  # a static input: straight from its pin
-                m.d.comb += v[1].eq(v[0])
-            elif flows[path] == Flow.In:
-                ins.append(v)
-            else:
-                outs.append(v)
+        ins, outs = self._ins, self._outs
+        m.d.comb += [port.eq(pin) for pin, port in self._pinned]  # static: straight from pins
         chain = Signal(sum(len(v) for v in ins), name="shell_in")
         m.d.sync += chain.eq(Cat(self.din, chain[:-1]))
         at = 0
