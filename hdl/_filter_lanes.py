@@ -42,6 +42,7 @@ from .matched_filter import (
     _round_saturate,
     _saturation_bounds,
     filter_out_layout,
+    surface_ready,
 )
 
 __all__ = ["elaborate", "latency"]
@@ -120,8 +121,7 @@ def elaborate(mf, platform) -> Module:
     # first message of a frame is used (the detector sends one).
     diff = Signal(TAG_WIDTH)
     m.d.comb += diff.eq(mf.surface.payload.tag - tag)
-    newer = (diff != 0) & ~diff[-1]
-    m.d.comb += mf.surface.ready.eq(~newer)
+    m.d.comb += mf.surface.ready.eq(surface_ready(mf, tag))
     take_s = mf.surface.valid & (diff == 0) & ~(accept & d.first)
     m.d.sync += fresh.eq(take_s)
     # start and its offsets by P, 2 P and lim, each one add from registers (the offsets of

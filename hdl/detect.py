@@ -121,7 +121,9 @@ class FilterDetect(wiring.Component):
     def __init__(self, lanes: int = 1, taps_max: int = L_MAX, lookahead: int = 0):
         # the parts are made here so that their latencies give the bound before elaboration
         # (private parts: an unused join warns for itself, they need not warn as well)
-        self._filter = MatchedFilter(lanes=lanes, taps_max=taps_max)
+        # the detector's messages come from samples the filter has passed: never for a newer
+        # frame, so the filter's surface.ready is 1 (MatchedFilter's surface_ahead)
+        self._filter = MatchedFilter(lanes=lanes, taps_max=taps_max, surface_ahead=False)
         self._filter._MustUse__silence = True
         self._detect = PeakDetect(lanes=lanes, lookahead=lookahead)
         self._detect._MustUse__silence = True

@@ -354,6 +354,16 @@ class RegisteredMultiplier(Elaboratable):
         return m
 
 
+def surface_ready(mf, tag: Signal):
+    """``surface.ready`` of ``mf`` whose current frame is ``tag``: low for a message of a newer
+    frame, which then waits for its frame; 1 when ``mf.surface_ahead`` is False (no message
+    is ever newer)."""
+    if not mf.surface_ahead:
+        return Const(1)
+    diff = mf.surface.payload.tag - tag
+    return ~((diff[:TAG_WIDTH] != 0) & ~diff[TAG_WIDTH - 1])
+
+
 class MatchedFilter(wiring.Component):
     """Depth-adaptive correlation of one frame after another, ``lanes`` samples per clock.
 
@@ -368,6 +378,15 @@ class MatchedFilter(wiring.Component):
         multipliers (``lanes * taps_max`` DSP blocks) and its own copy of the bank.
     taps_max : int
         Multipliers per lane, ``1..L_MAX`` (default ``L_MAX``): the largest run-time ``taps``.
+    surface_ahead : bool
+        Whether a surface message may come for a frame this filter has not started yet
+        (default True: a testbench or a host may give it ahead, and it waits). False where
+        every message is made from samples this filter has already passed
+        (:class:`~hdl.detect.FilterDetect`): a message is then for the current frame or an
+        older one, never a newer, and ``surface.ready`` is constant 1, so that no path runs
+        from the tag compare into the sender's message register (the interleaved builds'
+        worst path, 9.4 ns, ``docs/fpga.md``). A newer message would be lost: taken and never
+        used.
 
     With the defaults this is the one-lane design described in the Notes; any other choice is
     elaborated by :mod:`hdl._filter_lanes` (same ports and rules, these differences):
@@ -407,7 +426,7 @@ class MatchedFilter(wiring.Component):
         modulo ``2^TAG_WIDTH`` from reset, by ``first``). A message for the current frame is
         taken and used; one for an older frame is taken and dropped; one for a newer frame waits
         (``ready`` low) until that frame starts, so a testbench or a host can give the surface
-        ahead of the samples.
+        ahead of the samples (with ``surface_ahead``; without it ``ready`` is 1).
     coef : In(stream.Signature(COEF_WRITE))
         Coefficient writes ``h[k][j]`` at ``addr = k * L_MAX + j``. A write takes priority over
         samples: ``i.ready`` is low on its clock (and, at one lane, on the 14 after, while it
@@ -457,14 +476,17 @@ class MatchedFilter(wiring.Component):
     sample counter.
     """
 
-    def __init__(self, lanes: int = 1, taps_max: int = L_MAX):
+    def __init__(self, lanes: int = 1, taps_max: int = L_MAX, surface_ahead: bool = True):
         if not isinstance(lanes, int) or isinstance(lanes, bool) or lanes < 1:
             raise ValueError(f"lanes must be an integer of at least 1, not {lanes!r}")
         if (not isinstance(taps_max, int) or isinstance(taps_max, bool)
                 or not 1 <= taps_max <= L_MAX):
             raise ValueError(f"taps_max must be an integer in 1..{L_MAX}, not {taps_max!r}")
+        if not isinstance(surface_ahead, bool):
+            raise ValueError(f"surface_ahead must be True or False, not {surface_ahead!r}")
         self.lanes = lanes
         self.taps_max = taps_max
+        self.surface_ahead = surface_ahead
         if self._one_lane:
             self.latency = LATENCY
         else:
@@ -556,10 +578,7 @@ class MatchedFilter(wiring.Component):
         # only once `s_pend` is set, which happens at the edge that loads the frame's own, so
         # its ~30 enables wait on two registers, not on the tag compare (tag -> `==` -> the
         # enables of `start` was the filter's worst path, 5.0 ns, 3.5 of it routing).
-        diff = Signal(TAG_WIDTH)
-        m.d.comb += diff.eq(self.surface.payload.tag - tag)
-        newer = (diff != 0) & ~diff[-1]
-        m.d.comb += self.surface.ready.eq(~newer)
+        m.d.comb += self.surface.ready.eq(surface_ready(self, tag))
         with m.If(self.surface.valid & ~s_pend):
             m.d.sync += start.eq(self.surface.payload.n + cfg.bin_offset)
         with m.If(self.surface.valid & (self.surface.payload.tag == tag) & ~(accept & d.first)):

@@ -250,3 +250,24 @@ class TestAmaranthSim:
             static={**cfg_ports(cfg, "filter"), "templates": bank.K, "taps": bank.L})
         check(res, Case(bank, cfg, frames, [-1, 2, 1]))
         assert len(res.sources["surface"]["clock"]) == 3
+
+    def test_surface_not_ahead_is_always_ready(self):
+        # without surface_ahead (the join's filter) `ready` is 1: a message for a frame not yet
+        # started is taken at once and lost, so frame 1 keeps template 0; the join never sends
+        # one (tests/test_hdl_detect.py checks the join bit for bit)
+        bank = Bank(np.array([[3], [-5]], np.int16))
+        cfg = Config(out_shift=0, bin_offset=24, bin_len=1)
+        rng = np.random.default_rng(5)
+        frames = [rng.integers(-100, 100, 32).astype(np.int16) for _ in range(2)]
+        surface = Source(SURFACE, {"n": [2], "tag": [1]}, PLAIN)
+        res = simulate(MatchedFilter(surface_ahead=False), sources={
+            "coef": coef_source(bank), "i": sample_source(frames, PLAIN), "surface": surface},
+            sinks={"o": Sink(FILTER_OUT, PLAIN)},
+            static={**cfg_ports(cfg, "filter"), "templates": bank.K, "taps": bank.L})
+        check(res, Case(bank, cfg, frames, [-1, -1]))
+        assert res.sources["surface"]["clock"][0] <= 1
+
+
+def test_surface_ahead_must_be_a_bool():
+    with pytest.raises(ValueError, match=r"^surface_ahead must be True or False, not 1$"):
+        MatchedFilter(surface_ahead=1)
