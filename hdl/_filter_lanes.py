@@ -23,14 +23,13 @@ one compare of ``rem`` with a bound registered from ``bin_len``, so no compare f
 
 from __future__ import annotations
 
-from amaranth.hdl import Module, Mux, Signal, Value, signed
+from amaranth.hdl import Module, Mux, Signal, signed
 from amaranth.lib import data, memory
-from amaranth.lib.fifo import SyncFIFO
 
 from model.matched_filter import COEF_WIDTH, K_MAX
 from model.registers import by_name
 
-from ._primitives import _le
+from ._primitives import _le, _output_buffer
 from .layouts import STITCHED
 from .matched_filter import (
     _J_BITS,
@@ -87,7 +86,7 @@ def elaborate(mf, platform) -> Module:
     # flow control as the one-lane design: a free-running pipeline into an output buffer of
     # `capacity` beats, i.ready registered
     capacity = lat + 1
-    accept, _, accept_dl = _flow_control(m, mf, capacity)
+    accept, take, accept_dl = _flow_control(m, mf, capacity)
 
     # ---- frame state ----
     n = Signal(N_WIDTH)  # index of the next beat's lane-0 sample
@@ -283,15 +282,12 @@ def elaborate(mf, platform) -> Module:
         m.d.comb += [pipe.count.eq(last_sb.count)]
         m.d.comb += [pipe.k[p].eq(last_sb.k[p]) for p in range(P)]
 
-    # ---- output buffer: a FIFO of `capacity` beats in LUT RAM, bypassed when empty. (The
-    # one-lane design's shifting registers, at 8 lanes 10 x 230 of them selected by one
-    # `take`, were the longest path: 11.3 ns, nearly all of it routing that select.) ----
-    fifo = m.submodules.obuf = SyncFIFO(width=len(Value.cast(pipe)), depth=capacity)
-    m.d.comb += [
-        mf.o.valid.eq(fifo.r_rdy | last_sb.valid),
-        mf.o.payload.eq(Mux(fifo.r_rdy, fifo.r_data, pipe)),
-        fifo.r_en.eq(mf.o.ready),
-        fifo.w_data.eq(pipe),
-        fifo.w_en.eq(last_sb.valid & ~(mf.o.ready & ~fifo.r_rdy)),
-    ]
+    # ---- output buffer: `capacity` beats in LUT RAM, bypassed when empty, its head in a
+    # register (hdl._primitives._output_buffer, the one-lane design's). (The one-lane
+    # design's first buffer of shifting registers, at 8 lanes 10 x 230 of them selected by one
+    # `take`, was the longest path: 11.3 ns, nearly all of it routing that select. Then an
+    # amaranth SyncFIFO read straight from its LUT RAM into `o.payload`: the RAM's read
+    # address -> the RAM -> the bypass mux -> the detector's input decision was the 3 x 3
+    # interleaved build's worst path, 8.6 ns, 6.4 of it routing.) ----
+    _output_buffer(m, mf.o, capacity, pipe, last_sb.valid, take)
     return m
