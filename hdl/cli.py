@@ -75,8 +75,7 @@ def _synth(args) -> int:
                 f"--param {key}: the value must be an integer, not {value!r}") from None
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
-    res = synth_all(args.component, args.freq, params or None, args.router, args.context,
-                    args.density)
+    res = synth_all(args.component, args.freq, params or None, args.router, args.context)
     if args.out is not None:
         from .synth import record_figures
 
@@ -121,10 +120,6 @@ def register(subparsers) -> None:
                      help="out: the component alone, out of context (its clock on fabric "
                           "routing); in: inside a shell of registers, in context, its clock "
                           "on a global network (for designs of tens of thousands of FFs)")
-    syn.add_argument("--density", type=float, default=None,
-                     help="the placer's largest cell density, 0..1 (nextpnr's "
-                          "--placer-heap-beta, its default 0.9): lower spreads a congested "
-                          "many-engine build")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")

@@ -193,7 +193,7 @@ CONTEXTS = ("out", "in")
 
 def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
-               context: str = "out", density: float | None = None) -> dict:
+               context: str = "out") -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -222,11 +222,6 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         :class:`PortShell`, placed in context with its clock on a global network (what a
         design of tens of thousands of flip-flops needs to route). Recorded in the result
         (``context``).
-    density : float, optional
-        The placer's largest cell density in a region, 0 < density <= 1 (nextpnr's
-        ``--placer-heap-beta``, default 0.9): lower spreads a congested design so that its
-        router has more wires near each cell, at the cost of longer wires. Recorded in the
-        result when given.
 
     Returns
     -------
@@ -240,8 +235,6 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
     if context not in CONTEXTS:
         raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
-    if density is not None and not (isinstance(density, (int, float)) and 0 < density <= 1):
-        raise ValueError(f"density must be a number in (0, 1], not {density!r}")
     components = synth_components()
     if name not in components:
         raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
@@ -271,8 +264,6 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         else:
             text = verilog.convert(component, name=name, emit_src=False, platform=ECP5_SYNTH)
             placement = ["--out-of-context"]
-        if density is not None:
-            placement += ["--placer-heap-beta", str(density)]
         (wd / f"{name}.v").write_text(text)
         _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
               f"-json {name}.json"], wd, f"yosys on {name}")
@@ -301,7 +292,6 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "target_mhz": target_mhz,
         "router": router,
         "context": context,
-        **({"density": density} if density is not None else {}),
         "worst_path": worst_path(report),
         "seconds": round(time.perf_counter() - t0, 1),
     }
@@ -347,15 +337,14 @@ def worst_path(report: dict) -> dict | None:
 
 
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
-              router: str = "router1", context: str = "out",
-              density: float | None = None) -> dict:
+              router: str = "router1", context: str = "out") -> dict:
     """:func:`synthesize` every component (and the pipeline, when it exists); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
     component named, so give them with one component at a time."""
     names = sorted(synth_components()) if not names else list(names)
     return {"device": DEVICE,
             "components": {n: synthesize(n, target_mhz, params=params, router=router,
-                                         context=context, density=density)
+                                         context=context)
                            for n in names}}
 
 
