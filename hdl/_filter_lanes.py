@@ -289,5 +289,8 @@ def elaborate(mf, platform) -> Module:
     # amaranth SyncFIFO read straight from its LUT RAM into `o.payload`: the RAM's read
     # address -> the RAM -> the bypass mux -> the detector's input decision was the 3 x 3
     # interleaved build's worst path, 8.6 ns, 6.4 of it routing.) ----
-    _output_buffer(m, mf.o, capacity, pipe, last_sb.valid, take)
+    # (the markers from registers of their own, as at one lane)
+    before = sb[lat - 2]
+    _output_buffer(m, mf.o, capacity, pipe, last_sb.valid, take,
+                   ahead={"first": before.first, "last": before.last})
     return m

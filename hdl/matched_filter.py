@@ -728,5 +728,8 @@ class MatchedFilter(wiring.Component):
         m.d.comb += [pipe.k.eq(last_sb.k), pipe.first.eq(last_sb.first),
                      pipe.last.eq(last_sb.last)]
 
-        _output_buffer(m, self.o, capacity, pipe, last_sb.valid, take)
+        # the markers the detector decides on from registers of their own (_output_buffer)
+        before = sb[LATENCY - 2]
+        _output_buffer(m, self.o, capacity, pipe, last_sb.valid, take,
+                       ahead={"first": before.first, "last": before.last})
         return m
