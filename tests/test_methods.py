@@ -231,7 +231,7 @@ def test_survey_threshold_trade(scene):
 
 def test_float_weak_pass(scene):
     """Float peak detection's second pass (5.5 sigma) adds only weak answers: the confident
-    ones are exactly those of seed 000's single 8-sigma threshold."""
+    ones are exactly those of seed 000's single 8-sigma threshold, with the same depths."""
     import dataclasses
 
     flat = dataclasses.replace(scene, fidelity_tolerance_m=10.0, max_depth_m=40.0)
@@ -242,11 +242,107 @@ def test_float_weak_pass(scene):
     for m in (one, two):
         m.prepare(setup_for(flat))
     e1, e2 = one.estimate(shots), two.estimate(shots)
-    assert np.array_equal(e1.detected, e1.confident)
-    assert np.array_equal(e2.confident, e1.detected)
-    assert np.array_equal(e2.depth_m[e2.confident], e1.depth_m[e1.detected])
+    assert np.array_equal(e2.confident, e1.confident)
+    assert not (e1.detected & ~e2.detected).any()
+    assert np.array_equal(e2.depth_m[e1.detected], e1.depth_m[e1.detected])
     weak = e2.detected & ~e2.confident
     assert weak[:60].sum() > 0 and not e2.confident[60:].any()
+
+
+class TestFloatConfidence:
+    """Float peak detection stands behind a bottom only where it stands ``k_noise`` deviations
+    out of a noise it can trust: the smoothed lead-in's deviation or the raw lead-in's times the
+    smoothing's noise gain, whichever is larger (``PeaksFloat._stands_out``; ``docs/methods.md``,
+    "Confident and weak depths")."""
+
+    def test_smoothed_lead_in_misjudges_the_noise(self, setup):
+        """The premise: the detector's 80 lead-in samples smoothed by 2 pulse sigmas hold
+        about 5 independent values, and their deviation scatters from a third to 1.5 times the
+        smoothed noise's (5th and 95th percentiles); the raw lead-in's deviation times the
+        measured gain stays within about 20 %."""
+        from scipy.ndimage import gaussian_filter1d
+
+        from model.methods._common import noise_wave
+
+        m = prepared("peaks_float", setup)
+        fw = noise_wave(setup, n_samples=2048, n=16, seed=2101)
+        sigma, gain = m._scales()[0], m._gains[0]
+        inner = slice(64, 2048 - 64)  # away from the ends the smoothing pads
+        true = np.sqrt(gaussian_filter1d(fw.y, sigma, axis=1, mode="nearest")[:, inner]
+                       .var(axis=1).mean())
+        # 128 gates of 256 samples, smoothed as the detector smooths a gate; the lead-in's 80
+        lead_in = fw.y.reshape(-1, 256)
+        ys = gaussian_filter1d(lead_in, sigma, axis=1, mode="nearest")
+        lead = ys[:, :80].std(axis=1) / true
+        raw = lead_in[:, :80].std(axis=1) * gain / true
+        assert np.quantile(lead, 0.05) < 0.5 and np.quantile(lead, 0.95) > 1.4
+        assert 0.75 < np.quantile(raw, 0.05) and np.quantile(raw, 0.95) < 1.25
+
+    @pytest.mark.parametrize("regime, index", [("deep", 0), ("one_channel", 6)])
+    def test_no_confident_wrong_depth_at_26m(self, regime, index):
+        """The stability suite's own shots at 26 m (its seed for the point's first chunk), where
+        a stretched bottom near 5 true noise deviations stood 9 and 10 times a smoothed lead-in
+        deviation that came out at the floor (0.089 LSB against 0.14): confident and 0.57 m and
+        1.0 m short. Now weak; every confident depth keeps the bound."""
+        import dataclasses
+
+        from model.accuracy import chunk_seed
+        from model.regimes import REGIMES, regime_sweeps
+
+        r = next(r for r in REGIMES if r.name == regime)
+        pt = regime_sweeps((), 100, regimes=(r,))[0].points[index]
+        assert pt.depth_m == 26.0
+        shots = make_shots(pt.scene, pt.depth_m, 100, chunk_seed(f"regime:{regime}", 0, index, 0))
+        shots = dataclasses.replace(shots, setup=setup_for(pt.survey))
+        m = get_method("peaks_float")()
+        m.prepare(shots.setup)
+        e = run_quiet(m, shots)
+        wrong = e.detected & (np.abs(e.depth_m - 26.0) > m.error_bound_m)
+        assert not (wrong & e.confident).any()
+        assert (wrong & ~e.confident).any()  # still answered, weak
+
+    @pytest.mark.parametrize("name", ["peaks_float", "threshold"])
+    def test_flags_only(self, name, scene, setup, monkeypatch):
+        """The rule turns confident answers weak and changes nothing else: detections and depths
+        are the detector's; on bottoms well above the limit (5, 15, 22 m) every answer keeps its
+        flag (nearly all confident), at 25-26 m some confident ones turn weak."""
+        m = prepared(name, setup)
+        depths = np.repeat([5.0, 15.0, 22.0, 25.0, 26.0], 24)
+        shots = make_shots(scene, depths, depths.size, seed=2027)
+        new = run_quiet(m, shots)
+        monkeypatch.setattr(m, "_stands_out", lambda fw, r: np.ones(r["noise"].shape, bool))
+        old = run_quiet(m, shots)
+        assert np.array_equal(new.detected, old.detected)
+        assert np.array_equal(new.depth_m, old.depth_m)
+        c_new, c_old = new.confident & new.detected, old.confident & old.detected
+        assert not (c_new & ~c_old).any()
+        strong = depths <= 22.0
+        assert np.array_equal(c_new[strong], c_old[strong]) and c_new[strong].mean() > 0.9
+        assert (c_old & ~c_new)[~strong].any()
+
+    def test_bottom_prominence(self):
+        """``estimate_depths`` reports the bottom's one-sided prominence it tested."""
+        from model.methods._peaks import estimate_depths
+
+        t = np.arange(400.0)
+        y = 100 * np.exp(-0.5 * ((t - 100) / 3) ** 2) + 30 * np.exp(-0.5 * ((t - 250) / 3) ** 2)
+        y = y + 5 * (t > 200)  # a step under the bottom: its prominence is 30, its height 35
+        y = np.vstack([y, y]) + np.where(np.arange(400) % 2, 0.1, -0.1)
+        r = estimate_depths(y, 1e-9, 1.33, 0.0, prominence_window=20)
+        assert r["detected"].all()
+        np.testing.assert_allclose(r["bottom_prominence"], 30.0, atol=0.3)
+        np.testing.assert_allclose(r["bottom_amplitude"], 35.0, atol=0.3)
+        assert np.isnan(estimate_depths(y, 1e-9, 1.33, 0.0)["bottom_prominence"]).all()
+
+    def test_noise_wave(self, setup):
+        from model.methods._common import noise_wave
+
+        fw = noise_wave(setup, n_samples=256, n=3, seed=2102)
+        assert fw.y.shape == (3, 256) and fw.clipped.shape == (3, 256)
+        assert np.abs(fw.y).max() < 10 * fw.noise.max()  # no echo: noise alone
+        with pytest.raises(ValueError, match=re.escape(
+                "n_samples must be an integer >= 16 and n one >= 1, not 8 and 3")):
+            noise_wave(setup, n_samples=8, n=3)
 
 
 @pytest.mark.parametrize("name", ["gpg_lm", "weibull_eemd"])

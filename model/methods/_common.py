@@ -20,7 +20,8 @@ from model.stitch import stitch_config
 from .base import Estimate, Setup, Shots
 
 __all__ = ["DepthTable", "FloatWave", "build_table", "check_adc_shots", "column_decay",
-           "depth_scale", "finish", "float_wave", "ideal_wave", "not_detected", "stitch_cfg"]
+           "depth_scale", "finish", "float_wave", "ideal_wave", "noise_wave", "not_detected",
+           "stitch_cfg"]
 
 #: Leading samples of the gate used for baseline and noise, s (seed 000 section 1.3 takes the
 #: noise from the samples before the surface; 40 ns fits the default 60 ns pre-surface gate).
@@ -128,6 +129,36 @@ def ideal_wave(setup: Setup, depths_m, seed: int = 7) -> tuple[FloatWave, np.nda
     lsb_per_v = 256.0 * g_h / float(cap.get("full_scale_v", 1.0))
     return (FloatWave(res.volts * lsb_per_v, res.dt_s),
             res.bottom_time_s - res.surface_time_s)
+
+
+def noise_wave(setup: Setup, n_samples: int = 2048, n: int = 64, seed: int = 11) -> FloatWave:
+    """Noise-only waveforms of the setup's instrument, in stitched LSB (:func:`float_wave`).
+
+    ``n`` digitized shots (``sim.shots.make_shots``, seeded by ``seed``) of the setup's scene
+    with no bottom and the gate opening long enough before the surface echo that the first
+    ``n_samples`` samples hold noise alone (the sun's, the detector's, the electronics' and the
+    ADCs', through the front end and the setup's stitch); those samples are returned (fewer
+    where the scene's longest pre-surface gate holds fewer). For the statistics a shot's
+    lead-in has too few samples to measure, such as the noise's spectrum.
+    """
+    import dataclasses
+
+    from sim.shots import make_shots
+
+    if not (isinstance(n_samples, int) and isinstance(n, int) and n_samples >= 16 and n >= 1):
+        raise ValueError(f"n_samples must be an integer >= 16 and n one >= 1, not "
+                         f"{n_samples!r} and {n!r}")
+    sc = setup.scene
+    # the surface echo's leading edge stays 3 pulse widths plus 3 response times away
+    guard = math.ceil(3 * (sc.pulse_fwhm_s + 1 / sc.electrical_bandwidth_hz) / sc.dt_s)
+    longest = next(f for f in dataclasses.fields(sc) if f.name == "pre_surface_s").metadata["hi"]
+    n_samples = max(1, min(n_samples, math.floor(longest / sc.dt_s) - guard))
+    quiet = dataclasses.replace(sc, depth_m=math.nan, max_depth_m=0.0, post_bottom_s=0.0,
+                                pre_surface_s=(n_samples + guard) * sc.dt_s)
+    shots = dataclasses.replace(make_shots(quiet, math.nan, n, seed), setup=setup)
+    fw = float_wave(shots)
+    return FloatWave(fw.y[:, :n_samples], fw.dt_s, n0=fw.n0,
+                     clipped=fw.clipped[:, :n_samples])
 
 
 def not_detected(n: int) -> Estimate:

@@ -66,7 +66,10 @@ def estimate_depths(wave, dt_s, n_water, incidence_deg, *, k_noise=8.0, noise_sa
     -------
     dict of ndarray (n_waveforms,)
         ``surface_s``, ``bottom_s`` [s from the first sample], ``depth_m`` (``nan`` if none),
-        ``detected`` (bool), ``bottom_amplitude`` (above baseline), ``noise``.
+        ``detected`` (bool), ``bottom_amplitude`` (above baseline), ``bottom_prominence``
+        (the bottom's height over the higher of the two minima of ``prominence_window``'s
+        test; ``nan`` without a bottom or with ``prominence_window`` 0), ``noise`` (waveform
+        units).
     """
     if bottom_rule not in ("prominent", "last"):
         raise ValueError(f"bottom_rule must be 'prominent' or 'last', not {bottom_rule!r}")
@@ -88,6 +91,7 @@ def estimate_depths(wave, dt_s, n_water, incidence_deg, *, k_noise=8.0, noise_sa
     if peak_halfwidth > 1:
         is_peak &= y >= maximum_filter1d(y, 2 * int(peak_halfwidth) + 1, axis=1,
                                          mode="nearest")
+    height = None  # the one-sided prominence of every sample, when tested
     if prominence_window > 0:
         w = int(prominence_window)
         # minimum_filter1d's window is centred: shift it to end (start) at the sample itself
@@ -95,10 +99,11 @@ def estimate_depths(wave, dt_s, n_water, incidence_deg, *, k_noise=8.0, noise_sa
         # on the right, the lowest point up to the end of the gate: a stretched bottom's long
         # tail would otherwise hide its own prominence
         hi = np.minimum.accumulate(y[:, ::-1], axis=1)[:, ::-1]
-        is_peak &= (y - np.maximum(lo, hi)) > (k_noise * sd)[:, None]
+        height = y - np.maximum(lo, hi)
+        is_peak &= height > (k_noise * sd)[:, None]
     is_peak[:, :n0] = False
     out = {key: np.full(n_w, np.nan) for key in ("surface_s", "bottom_s", "depth_m",
-                                                  "bottom_amplitude")}
+                                                  "bottom_amplitude", "bottom_prominence")}
     out["detected"] = np.zeros(n_w, dtype=bool)
     out["noise"] = sd
     has_s = is_peak.any(axis=1)
@@ -127,6 +132,8 @@ def estimate_depths(wave, dt_s, n_water, incidence_deg, *, k_noise=8.0, noise_sa
     bb = b[rows]
     out["bottom_s"][rows] = (bb + parabola_offset(y[rows], bb)) * dt_s
     out["bottom_amplitude"][rows] = y[rows, bb] - mu[rows]
+    if height is not None:
+        out["bottom_prominence"][rows] = height[rows, bb]
     out["detected"][rows] = True
     cos_w = math.cos(math.asin(math.sin(math.radians(incidence_deg)) / n_water))
     out["depth_m"][rows] = ((out["bottom_s"][rows] - out["surface_s"][rows]) * C0

@@ -16,6 +16,7 @@ from ._common import (
     finish,
     float_wave,
     ideal_wave,
+    noise_wave,
     not_detected,
 )
 from ._peaks import estimate_depths
@@ -64,6 +65,13 @@ class PeaksFloat(Method):
     Weak answers: shots without a bottom at 8 sigma are tried again at ``k_weak = 5.5`` sigma
     (the three smoothings again); those answers are *weak* (``Estimate.confident`` False:
     reported, flagged, held to no bound; 2.4 % of shots on water without a bottom give one).
+    So is a bottom found at 8 sigma that does not also stand 8 times the raw lead-in's noise
+    deviation times the smoothing's noise gain (:meth:`_stands_out`; the gains are measured
+    on the survey's own noise at :meth:`prepare`): the smoothed lead-in holds too few
+    independent samples (about 5 at the widest smoothing) to trust its deviation alone, and
+    where it came out low a stretched bottom at about 5 true noise deviations passed the
+    threshold confidently with its peak 15-25 samples off (the stability suite's deep and
+    one-channel regimes at 26 m, before this). Only the flag changes, never the depth.
 
     Failure modes: deep, weak bottoms (seed 000 water: the spread grows from 1 cm at 17 m to
     3-6 cm at 20-22 m, and bottoms beyond about 23 m stay under the 8-sigma threshold: weak
@@ -91,11 +99,14 @@ class PeaksFloat(Method):
         self._pulse = None  # received pulse's standard deviation, samples
         self._last = None  # the last detection (smoothed waveform, picks, dt)
         self._rate0 = None  # the survey water's column decay rate, 1/sample
+        self._gains = None  # per smoothing of ``_scales``, the noise's deviation over the raw
 
     def prepare(self, setup: Setup) -> None:
-        """The smoothing width and the per-survey depth table for the setup's scene."""
+        """The smoothing width, the smoothings' noise gains and the per-survey depth table for
+        the setup's scene."""
         self._pulse = pulse_sigma_s(setup.scene) / setup.dt_s
         self._sigma = self.smooth_factor * self._pulse
+        self._gains = self._noise_gains(setup)
         self._table = build_table(self, setup)
         self._rate0 = None
         if self._table is not None:
@@ -103,6 +114,43 @@ class PeaksFloat(Method):
             _, r, _ = self._detect(fw)
             rate = self._column_rate(fw, r["surface_s"], np.full(1, np.inf))[0]
             self._rate0 = float(rate) if np.isfinite(rate) and rate > 0 else None
+
+    def _scales(self) -> tuple:
+        """The smoothings :meth:`_detect` tries, widest first, samples (standard deviation)."""
+        return (self._sigma, self._pulse, 0.4 * self._pulse)
+
+    def _noise_gains(self, setup: Setup) -> np.ndarray:
+        """Per smoothing of :meth:`_scales`, the deviation of the smoothed noise over the raw
+        noise's, measured on the setup's own noise (``_common.noise_wave``: 64 x 2048
+        samples, seeded), away from the ends the smoothing pads.
+
+        White noise would give ``1 / sqrt(2 sqrt(pi) sigma)``; the front end's response
+        correlates the noise over a few samples, and on seed 000's instrument the gains are
+        0.25, 0.35 and 0.53 at the three smoothings instead of 0.18, 0.25 and 0.40.
+        """
+        fw = noise_wave(setup)
+        scales = self._scales()
+        edge = min(math.ceil(4 * max(scales)), (fw.y.shape[1] - 2) // 2)
+        inner = slice(edge, fw.y.shape[1] - edge)
+        raw = math.sqrt(fw.y[:, inner].var(axis=1).mean())
+        if not raw > 0:  # a noise-free instrument: nothing to correct
+            return np.zeros(len(scales))
+        return np.array([math.sqrt(gaussian_filter1d(fw.y, s, axis=1, mode="nearest")[:, inner]
+                                   .var(axis=1).mean()) / raw for s in scales])
+
+    def _stands_out(self, fw: FloatWave, r: dict) -> np.ndarray:
+        """Whether each shot's bottom stands ``k_noise`` deviations out of the noise of its
+        smoothed waveform taken as the larger of the detector's estimate (the smoothed lead-in's
+        deviation) and the raw lead-in's deviation times the smoothing's noise gain; the tests
+        are the detector's own (height over the baseline, one-sided prominence).
+
+        ``r`` holds :meth:`_detect`'s picks; bool (n,), False where there is no bottom.
+        """
+        noise = np.maximum(r["noise"], self._gains[r["scale"]] * fw.noise)
+        lim = self.k_noise * noise
+        with np.errstate(invalid="ignore"):
+            # a prominence of nan was not tested by the detector, so it fails nothing here
+            return (r["bottom_amplitude"] > lim) & ~(r["bottom_prominence"] <= lim)
 
     def _column_rate(self, fw: FloatWave, surface_s, bottom_s) -> np.ndarray:
         """The water column's decay rate under the surface, 1/sample (``column_decay``) on the
@@ -132,8 +180,9 @@ class PeaksFloat(Method):
         """Picks at several smoothings, per shot the widest one that finds a bottom.
 
         Returns ``(y, r, sigma)``: per row the waveform at the smoothing used, the picks
-        (``estimate_depths``'s dict, plus ``weak``) and that smoothing's standard deviation,
-        samples. The widest (``smooth_factor`` pulse sigmas) reaches deeper, weaker bottoms;
+        (``estimate_depths``'s dict, plus ``weak`` and ``scale``, the index of the smoothing in
+        :meth:`_scales`) and that smoothing's standard deviation, samples. The widest
+        (``smooth_factor`` pulse sigmas) reaches deeper, weaker bottoms;
         the narrower ones (one and 0.4 pulse sigma) still separate the two returns in shallow
         water, where a wider one merges them (below about 2 m and 1.3 m). Rows that none of
         them reads at ``k_noise`` go through the three again with ``k_weak``; what that finds is
@@ -144,10 +193,10 @@ class PeaksFloat(Method):
         y = np.zeros_like(raw)
         used = np.zeros(n)
         r = None
-        scales = (self._sigma, self._pulse, 0.4 * self._pulse)
+        scales = self._scales()
         passes = (self.k_noise,) if self.k_weak is None else (self.k_noise, self.k_weak)
         for k in passes:
-            for sigma in scales:
+            for j, sigma in enumerate(scales):
                 rows = ~r["detected"] if r is not None else np.ones(n, dtype=bool)
                 if not rows.any():
                     break
@@ -156,12 +205,14 @@ class PeaksFloat(Method):
                 if r is None:
                     r = {key: np.zeros(n, dtype=v.dtype) for key, v in rs.items()}
                     r["weak"] = np.zeros(n, dtype=bool)
+                    r["scale"] = np.zeros(n, dtype=np.int64)
                 # rows not found at this scale keep trying; the last answer stands
                 take = rs["detected"] | ((sigma == scales[-1]) & (k == passes[-1]))
                 idx = np.flatnonzero(rows)[take]
                 for key in rs:
                     r[key][idx] = rs[key][take]
                 r["weak"][idx] = rs["detected"][take] & (k != self.k_noise)
+                r["scale"][idx] = j
                 y[idx] = ys[take]
                 used[idx] = sigma
         self._last = (y, r, fw.dt_s)
@@ -187,7 +238,10 @@ class PeaksFloat(Method):
             ratio = self._column_rate(fw, r["surface_s"], r["bottom_s"]) / self._rate0
             with np.errstate(invalid="ignore"):
                 ok = ok & ~(np.abs(ratio - 1.0) > self.column_tol)
-        weak = self._last[1]["weak"]
+        r = self._last[1]
+        # a bottom that does not stand out of the noise estimated from the raw lead-in too is
+        # weak (class docstring): the smoothed lead-in alone can underrate the noise by half
+        weak = r["weak"] | ~self._stands_out(fw, r)
         if self.fits_shape and fw.clipped is not None:
             # every channel clipped: the fitted shape's top is cut off, and a fit then matches
             # a shape that is not there (the stability suite's one-channel regime: up to 70 %
