@@ -75,7 +75,8 @@ def _synth(args) -> int:
                 f"--param {key}: the value must be an integer, not {value!r}") from None
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
-    res = synth_all(args.component, args.freq, params or None, args.router, args.context)
+    res = synth_all(args.component, args.freq, params or None, args.router, args.context,
+                    args.placer)
     if args.out is not None:
         from .synth import record_figures
 
@@ -114,7 +115,10 @@ def register(subparsers) -> None:
 
     syn.add_argument("--router", choices=ROUTERS, default="router1",
                      help="nextpnr's router (router2 for congested many-lane joins)")
-    from .synth import CONTEXTS
+    from .synth import CONTEXTS, PLACERS
+
+    syn.add_argument("--placer", choices=PLACERS, default="heap",
+                     help="nextpnr's placer (static: shorter wires on the many-engine builds)")
 
     syn.add_argument("--context", choices=CONTEXTS, default="out",
                      help="out: the component alone, out of context (its clock on fabric "

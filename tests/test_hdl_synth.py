@@ -17,7 +17,7 @@ class TestSynth:
         assert 40 < r["fmax_mhz"] < 600
         assert abs(r["samples_per_s"] - r["fmax_mhz"] * 1e6) < 1e5  # one lane
         assert (tmp_path / "report.json").exists() and (tmp_path / "albcap_stitch.v").exists()
-        assert r["router"] == "router1"
+        assert r["router"] == "router1" and r["placer"] == "heap"
         assert "Max frequency" in (tmp_path / "nextpnr.log").read_text()
         # the path that holds fmax: its delay is the clock period fmax gives
         w = r["worst_path"]
@@ -31,25 +31,28 @@ class TestSynth:
 
     def test_command_json(self, capsys, tmp_path):
         out = tmp_path / "fpga.json"
-        # router2 here, so that the option reaches nextpnr (router1 runs in the test above)
+        # router2 and the static placer here, so that the options reach nextpnr (router1 and
+        # heap run in the test above)
         assert main(["hdl", "synth", "--json", "--component", "albcap_stitch",
-                     "--router", "router2", "--out", str(out)]) == 0
+                     "--router", "router2", "--placer", "static", "--out", str(out)]) == 0
         res = json.loads(capsys.readouterr().out)
         assert json.loads(out.read_text())["figures"]["albcap_stitch"]["fmax_mhz"] == \
             res["components"]["albcap_stitch"]["fmax_mhz"]
         assert res["device"]["part"] == "LFE5U-85F"
         assert set(res["components"]) == {"albcap_stitch"}
         assert res["components"]["albcap_stitch"]["router"] == "router2"
+        assert res["components"]["albcap_stitch"]["placer"] == "static"
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
             res["components"]["albcap_stitch"])
 
     def test_stitch_in_context(self, tmp_path):
         """In a shell of registers, placed in context: the clock on a global network (a
         ``DCCA``), the streams through the shell, the static registers on pins of their own."""
-        r = synthesize("albcap_stitch", work_dir=tmp_path, context="in")
+        r = synthesize("albcap_stitch", work_dir=tmp_path, context="in", placer="static")
         assert r["context"] == "in" and r["dsps"] == 1 and 40 < r["fmax_mhz"] < 600
         log = (tmp_path / "nextpnr.log").read_text()
         assert "promoting clock net" in log and "routing clock net" in log
+        assert "Running Static placer" in log and r["placer"] == "static"
         v = (tmp_path / "albcap_stitch.v").read_text()
         head = v[v.index("module albcap_stitch("):].split(";")[0]
         assert "din" in head and "dout" in head and "cfg__sat_threshold" in head
@@ -83,6 +86,11 @@ class TestSynth:
     def test_unknown_router(self):
         with pytest.raises(ValueError, match="router must be one of .*, not 'router3'"):
             synthesize("albcap_stitch", router="router3")
+
+    def test_unknown_placer(self):
+        with pytest.raises(ValueError, match=r"placer must be one of \('heap', 'static'\), "
+                                             r"not 'sa'"):
+            synthesize("albcap_stitch", placer="sa")
 
     def test_param_errors(self, capsys):
         for args, msg in ((["--param", "lanes"], "--param wants NAME=VALUE"),
