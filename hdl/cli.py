@@ -76,7 +76,7 @@ def _synth(args) -> int:
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
-                    args.placer)
+                    args.placer, args.seed)
     if args.out is not None:
         from .synth import record_figures
 
@@ -119,6 +119,8 @@ def register(subparsers) -> None:
 
     syn.add_argument("--placer", choices=PLACERS, default="heap",
                      help="nextpnr's placer (static: shorter wires on the many-engine builds)")
+    syn.add_argument("--seed", type=int, default=1,
+                     help="nextpnr's random seed (fmax spreads by some 5 %% between seeds)")
 
     syn.add_argument("--context", choices=CONTEXTS, default="out",
                      help="out: the component alone, out of context (its clock on fabric "

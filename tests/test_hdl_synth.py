@@ -34,7 +34,8 @@ class TestSynth:
         # router2 and the static placer here, so that the options reach nextpnr (router1 and
         # heap run in the test above)
         assert main(["hdl", "synth", "--json", "--component", "albcap_stitch",
-                     "--router", "router2", "--placer", "static", "--out", str(out)]) == 0
+                     "--router", "router2", "--placer", "static", "--seed", "7",
+                     "--out", str(out)]) == 0
         res = json.loads(capsys.readouterr().out)
         assert json.loads(out.read_text())["figures"]["albcap_stitch"]["fmax_mhz"] == \
             res["components"]["albcap_stitch"]["fmax_mhz"]
@@ -42,6 +43,7 @@ class TestSynth:
         assert set(res["components"]) == {"albcap_stitch"}
         assert res["components"]["albcap_stitch"]["router"] == "router2"
         assert res["components"]["albcap_stitch"]["placer"] == "static"
+        assert res["components"]["albcap_stitch"]["seed"] == 7
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
             res["components"]["albcap_stitch"])
 
@@ -86,6 +88,10 @@ class TestSynth:
     def test_unknown_router(self):
         with pytest.raises(ValueError, match="router must be one of .*, not 'router3'"):
             synthesize("albcap_stitch", router="router3")
+
+    def test_bad_seed(self):
+        with pytest.raises(ValueError, match=r"seed must be an integer in 1\.\.2\*\*31-1, not 0"):
+            synthesize("albcap_stitch", seed=0)
 
     def test_unknown_placer(self):
         with pytest.raises(ValueError, match=r"placer must be one of \('heap', 'static'\), "
