@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
-from amaranth.lib.fifo import SyncFIFO, SyncFIFOBuffered
+from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
 from model.layouts import FRAME_HEADER
@@ -41,7 +41,7 @@ from .gate import Gate
 from .layouts import CODES, GATE_OUT, STITCHED, config_signature
 from .matched_filter import COEF_WRITE
 
-__all__ = ["ADC_IN", "Pipeline", "register_slice"]
+__all__ = ["ADC_IN", "Pipeline", "RegisterSlice", "register_slice"]
 
 #: One ADC clock: the three codes, the outgoing-pulse trigger and the scan line sync.
 ADC_IN = data.StructLayout({
@@ -107,15 +107,53 @@ def _join_into_slice(out, side, joined, slice_, consumer) -> list:
     ]
 
 
-def register_slice(width: int) -> SyncFIFOBuffered:
-    """A stream register slice: output data and ``w_rdy`` both from registers, one transfer
-    per clock sustained, two clocks of latency.
+class RegisterSlice(wiring.Component):
+    """A stream register slice (a skid buffer): ``r_data``, ``r_rdy`` and ``w_rdy`` are each a
+    flip-flop, one transfer per clock sustained, one clock of latency, two entries.
 
-    ``SyncFIFOBuffered`` of depth 3 (a 2-entry FIFO behind an output register). Depth 2 would
-    be a 1-entry FIFO whose ``w_rdy`` is low on the clock its entry moves out: half a transfer
-    per clock (measured; ``tests/test_hdl_pipeline.py`` checks the rate).
+    Ports as ``amaranth.lib.fifo`` FIFOs (``w_data``, ``w_en``, ``w_rdy``, ``r_data``,
+    ``r_en``, ``r_rdy``). The output register holds the oldest entry; a write that finds it
+    held and not read this clock goes to the skid register, and ``w_rdy`` is low exactly while
+    the skid register is full. Written by hand because ``amaranth.lib.fifo`` has no FIFO whose
+    ``w_rdy`` is a register: ``SyncFIFOBuffered(depth=3)``, the slice until the thirteenth
+    session, makes ``w_rdy`` a compare of its inner FIFO's level, and that compare -> the
+    filter's output fork -> the side FIFO's read was the pipeline's worst path (6.67 ns, 150.0
+    MHz, ``docs/fpga.md``). Like that slice, no path runs from ``r_en`` to ``w_rdy``.
     """
-    return SyncFIFOBuffered(width=width, depth=3)
+
+    def __init__(self, width: int):
+        if not (isinstance(width, int) and width >= 1):
+            raise ValueError(f"width must be an integer >= 1, not {width!r}")
+        self.width = width
+        super().__init__({"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
+                          "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)})
+
+    def elaborate(self, platform):
+        m = Module()
+        skid = Signal(self.width)
+        skid_full = Signal()
+        write = self.w_en & self.w_rdy
+        # the output register is free at this clock's edge: empty, or read now
+        free = ~self.r_rdy | self.r_en
+        with m.If(free):
+            with m.If(skid_full):
+                # the skid's entry is older than any write (none is taken while it is full)
+                m.d.sync += [self.r_data.eq(skid), self.r_rdy.eq(1), skid_full.eq(0)]
+            with m.Else():
+                m.d.sync += [self.r_data.eq(self.w_data), self.r_rdy.eq(write)]
+        with m.Elif(write):
+            m.d.sync += [skid.eq(self.w_data), skid_full.eq(1)]
+        # w_rdy = ~skid_full at the next clock, as a register of its own
+        m.d.sync += self.w_rdy.eq(~Mux(free, 0, skid_full | write))
+        return m
+
+
+def register_slice(width: int) -> RegisterSlice:
+    """A stream register slice between two stages (:class:`RegisterSlice`): outputs and
+    ``w_rdy`` from flip-flops, one transfer per clock. (Depth 2 of ``SyncFIFOBuffered`` would
+    be a 1-entry FIFO whose ``w_rdy`` is low on the clock its entry moves out: half a transfer
+    per clock; ``tests/test_hdl_pipeline.py`` checks the rate.)"""
+    return RegisterSlice(width)
 
 
 class Pipeline(wiring.Component):
