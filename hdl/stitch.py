@@ -23,7 +23,7 @@ other operands; one pipeline, one timing path, both modes tested through it.
 from __future__ import annotations
 
 from amaranth.hdl import Module, Mux, Signal, signed
-from amaranth.lib import stream, wiring
+from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.stitch import CODE_MAX, RATIO_FRAC, STITCH_WIDTH
@@ -35,7 +35,7 @@ from .matched_filter import RegisteredMultiplier
 __all__ = ["CAPACITY", "LATENCY", "Stitch"]
 
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
-LATENCY = 5
+LATENCY = 6
 #: Samples accepted and not yet taken at the output, at most: ``i.ready`` is low while this
 #: many are inside. The pipeline sizes the side FIFO beside the stitch by it.
 CAPACITY = LATENCY + 1
@@ -62,11 +62,11 @@ class Stitch(wiring.Component):
 
     Notes
     -----
-    Latency: :data:`LATENCY` = 5 clocks (the channel choice registered, the multiplier's
-    operands registered, product registered, the saturation compares and rounded bits
-    registered, the output registered): the multiplier is a
-    :class:`~hdl.matched_filter.RegisteredMultiplier`, an ECP5 ``MULT18X18D`` with its own
-    input and output registers when synthesized for one. Throughput: one sample per clock
+    Latency: :data:`LATENCY` = 6 clocks (the saturation compares registered, the channel
+    choice registered, the multiplier's operands registered, product registered, the output
+    saturation compares and rounded bits registered, the output registered): the multiplier
+    is a :class:`~hdl.matched_filter.RegisteredMultiplier`, an ECP5 ``MULT18X18D`` with its
+    own input and output registers when synthesized for one. Throughput: one sample per clock
     while ``o.ready`` is high.
 
     The pipeline runs free (no clock enable) into an output buffer of :data:`CAPACITY` samples
@@ -107,26 +107,38 @@ class Stitch(wiring.Component):
             full.eq(_fills(at_cap, below_cap, accept, take)),
         ]
 
-        # Stage 0: the channel choice and its operands, registered. The saturation compares on
-        # the incoming codes, the choice and then the subtraction into the multiplier in one
-        # clock were the stitch's worst path in context, from the register that feeds it
-        # (the pipeline's, in context: 8.56 ns, 116.8 MHz; the stitch alone: 137.6 MHz).
+        # Stage 0: the saturation compares on the incoming codes, registered with the codes and
+        # the registers the choice reads (so a register write still acts on the samples
+        # accepted from the next clock on). Stage 0b: the channel choice and its operands,
+        # registered. The compares, the choice and the subtraction into the multiplier in one
+        # clock were the stitch's worst path in context (8.56 ns, 116.8 MHz; the stitch alone:
+        # 137.6 MHz); the compares and the choice in one, from the pipeline's input register
+        # (a carry chain, then the choice into the ratio register's set/reset pins) were the
+        # pipeline's worst path with nextpnr seed 2 (7.38 ns, 135.5 MHz).
         paper = cfg.stitch_mode == 0
         t = Mux(paper, CODE_MAX, cfg.sat_threshold)
-        h_ok, m_ok = d.h < t, d.m < t
+        kept = ("baseline_l", "baseline_m", "baseline_h", "ratio_m_q8", "ratio_l_q8")
+        held = data.StructLayout({"codes": CODES, "h_ok": 1, "m_ok": 1, "paper": 1,
+                                  **{f: getattr(cfg, f).shape() for f in kept}})
+        s0 = Signal(held)
+        v00 = Signal()
+        m.d.sync += [s0.codes.eq(d), s0.h_ok.eq(d.h < t), s0.m_ok.eq(d.m < t),
+                     s0.paper.eq(paper), v00.eq(accept),
+                     *(getattr(s0, f).eq(getattr(cfg, f)) for f in kept)]
+        h_ok, m_ok, paper = s0.h_ok, s0.m_ok, s0.paper
         unity = 1 << RATIO_FRAC
-        code = Mux(h_ok, d.h, Mux(m_ok, d.m, d.l))
+        code = Mux(h_ok, s0.codes.h, Mux(m_ok, s0.codes.m, s0.codes.l))
         offset = Signal(signed(10))  # -2 * CODE_MAX .. CODE_MAX
         with m.If(paper):
             m.d.comb += offset.eq(Mux(h_ok, 0, Mux(m_ok, -CODE_MAX, -2 * CODE_MAX)))
         with m.Else():
-            m.d.comb += offset.eq(Mux(h_ok, cfg.baseline_h,
-                                      Mux(m_ok, cfg.baseline_m, cfg.baseline_l)))
-        ratio = Mux(paper | h_ok, unity, Mux(m_ok, cfg.ratio_m_q8, cfg.ratio_l_q8))
+            m.d.comb += offset.eq(Mux(h_ok, s0.baseline_h,
+                                      Mux(m_ok, s0.baseline_m, s0.baseline_l)))
+        ratio = Mux(paper | h_ok, unity, Mux(m_ok, s0.ratio_m_q8, s0.ratio_l_q8))
         code_q, offset_q = Signal(8), Signal(signed(10))
         ratio_q = Signal(ratio.shape())
         v0 = Signal()
-        m.d.sync += [code_q.eq(code), offset_q.eq(offset), ratio_q.eq(ratio), v0.eq(accept)]
+        m.d.sync += [code_q.eq(code), offset_q.eq(offset), ratio_q.eq(ratio), v0.eq(v00)]
 
         # Stages 1 and 2: the multiplier's operand and product registers (the DSP block's own
         # on an ECP5, see RegisteredMultiplier).
