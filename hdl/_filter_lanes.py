@@ -140,7 +140,7 @@ def elaborate(mf, platform) -> Module:
 
     n_nx, rem_nx = Signal.like(n), Signal.like(rem)
     armed_nx, active_nx, k_nx = Signal(), Signal(), Signal.like(k)
-    m.d.comb += [n_nx.eq(n), rem_nx.eq(rem), armed_nx.eq(armed), active_nx.eq(active),
+    m.d.comb += [n_nx.eq(n), rem_nx.eq(rem), armed_nx.eq(armed),
                  k_nx.eq(k)]
     with m.If(accept):
         m.d.comb += [n_nx.eq(Mux(d.first, P, n1)), k_nx.eq(k_sel[P - 1])]
@@ -170,7 +170,7 @@ def elaborate(mf, platform) -> Module:
     hit_nx, hit_a_nx, hit_b_nx = Signal(), Signal(), Signal()
     m.d.comb += [hit_nx.eq(hit), hit_a_nx.eq(hit_a), hit_b_nx.eq(hit_b)]
     with m.If(accept & d.first):
-        m.d.comb += [armed_nx.eq(0), active_nx.eq(0), hit_nx.eq(0)]
+        m.d.comb += [armed_nx.eq(0), hit_nx.eq(0)]
     with m.Elif(fresh & ~armed):
         m.d.comb += [
             armed_nx.eq(1),
@@ -191,14 +191,15 @@ def elaborate(mf, platform) -> Module:
             hit_b_nx.eq(Mux(hit, ~lt(rem, lim) & lt(rem, t1),
                             ~lt(rem, 2 * P) & lt(rem, 3 * P))),
         ]
-        with m.If(hit):
-            m.d.comb += active_nx.eq(1)
     # k_ev: the template from the next switch on, for the accepted beat and for none, each
     # from registers and the port's `first`; `accept` picks (from `accept` through the choice
     # of k_nx into the add and compare was the 3 x 3 interleaved build's worst path, 7.9 ns)
     def from_switch(act, kk):
         return Mux(act, Mux(kk >= k_max, kk, kk + 1), Mux(k_max >= 1, 1, 0))
+    # past the switch after this clock: an accepted first beat starts a frame; an accepted
+    # beat of an armed frame (not arming now) that holds the switch passes it
     active_acc = Mux(d.first, 0, Mux(~(fresh & ~armed) & armed & hit, 1, active))
+    m.d.comb += active_nx.eq(Mux(accept, active_acc, active))
     m.d.sync += [
         n.eq(n_nx), rem.eq(rem_nx), armed.eq(armed_nx), active.eq(active_nx), k.eq(k_nx),
         hit.eq(hit_nx), hit_a.eq(hit_a_nx), hit_b.eq(hit_b_nx),

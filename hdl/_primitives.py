@@ -15,7 +15,7 @@ from functools import reduce
 from operator import or_
 
 from amaranth.hdl import Const, Module, Mux, Signal, signed, unsigned
-from amaranth.lib import memory, stream, wiring
+from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from ._bram import BlockRAM
@@ -349,36 +349,32 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take, ahead=No
                  held_up.eq(held + 1), held_down.eq(held - 1)]
     # The head after this clock: the entry after it at a pop (in the RAM when two or more are
     # held, else the pipeline's beat, kept by this push), the pipeline's beat when the buffer
-    # is empty (kept or not: unused then), else unchanged. Worked out for a take (a pop when
-    # anything is held) and for none, each from registers and the RAM's read, the take only
-    # choosing: the handshake -> the pop -> the head's select and enable was the pipeline's
-    # worst path in all three seeds of run 31 (7.3-7.7 ns).
-    def head_next(taken: bool):
-        if taken:
-            return Mux(held_is0 | (any_held & held_is1), pipe, Mux(any_held, rp.data, head))
-        return Mux(held_is0, pipe, head)
-    any_held_nx = Signal()
-    m.d.comb += any_held_nx.eq(push | (~held_is0 & ~held_is1) | (held_is1 & ~pop))
-    m.d.sync += [
-        head.eq(Mux(take, head_next(True), head_next(False))),
-        w_ptr.eq(Mux(push, w_up, w_ptr)),
-        r_next.eq(Mux(pop, r_up, r_next)),
-        held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
-        any_held.eq(any_held_nx),
-    ]
-    # The fields shown ahead: what the head-or-pipe mux shows next, worked out for a take and
-    # for none from registers (and the RAM's read), the take only choosing: through the take
-    # into the pop, the head's and the count's next values and then the mux, `any_held` ->
-    # the consumer's ready -> `obuf_first` was the pipeline's worst path (6.73 ns).
-    def shown_next(name, taken: bool):
+    # is empty (kept or not: unused then), else unchanged; and whether anything is held then.
+    # Both worked out for a take (a pop when anything is held) and for none, each from
+    # registers and the RAM's read, the take only choosing: the handshake -> the pop -> the
+    # head's select and enable was the pipeline's worst path in all three seeds of run 31
+    # (7.3-7.7 ns).
+    def after(taken: bool):
         pop_t = any_held if taken else Const(0)
         push_t = pipe_valid & any_held if taken else pipe_valid
         held_t = push_t | (~held_is0 & ~held_is1) | (held_is1 & ~pop_t)
-        head_t = Mux(held_is0 | (pop_t & held_is1), getattr(pipe, name),
-                     Mux(pop_t, getattr(rp.data, name), getattr(head, name)))
-        return Mux(held_t, head_t, ahead[name])
-    for name in ahead or {}:
+        head_t = Mux(held_is0 | (pop_t & held_is1), pipe, Mux(pop_t, rp.data, head))
+        return held_t, head_t
+    (held_tk, head_tk), (held_no, head_no) = after(True), after(False)
+    m.d.sync += [
+        head.eq(Mux(take, head_tk, head_no)),
+        w_ptr.eq(Mux(push, w_up, w_ptr)),
+        r_next.eq(Mux(pop, r_up, r_next)),
+        held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
+        any_held.eq(Mux(take, held_tk, held_no)),
+    ]
+    # The fields shown ahead: what the head-or-pipe mux shows next, the take choosing as for
+    # the head (through the take into the pop, the head's and the count's next values and
+    # then the mux, `any_held` -> the consumer's ready -> `obuf_first` was the pipeline's
+    # worst path, 6.73 ns).
+    for name, nxt in (ahead or {}).items():
         field = getattr(o.payload, name)
         reg = Signal.like(field, name=f"obuf_{name}")
-        m.d.sync += reg.eq(Mux(take, shown_next(name, True), shown_next(name, False)))
+        tk, no = (getattr(data.View(head.shape(), h), name) for h in (head_tk, head_no))
+        m.d.sync += reg.eq(Mux(take, Mux(held_tk, tk, nxt), Mux(held_no, no, nxt)))
         m.d.comb += field.eq(reg)

@@ -131,20 +131,18 @@ class RegisterSlice(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         skid = Signal(self.width)
-        skid_full = Signal()
+        skid_full = ~self.w_rdy  # w_rdy is the register: low exactly while the skid is full
         write = self.w_en & self.w_rdy
         # the output register is free at this clock's edge: empty, or read now
         free = ~self.r_rdy | self.r_en
         with m.If(free):
             with m.If(skid_full):
                 # the skid's entry is older than any write (none is taken while it is full)
-                m.d.sync += [self.r_data.eq(skid), self.r_rdy.eq(1), skid_full.eq(0)]
+                m.d.sync += [self.r_data.eq(skid), self.r_rdy.eq(1), self.w_rdy.eq(1)]
             with m.Else():
                 m.d.sync += [self.r_data.eq(self.w_data), self.r_rdy.eq(write)]
         with m.Elif(write):
-            m.d.sync += [skid.eq(self.w_data), skid_full.eq(1)]
-        # w_rdy = ~skid_full at the next clock, as a register of its own
-        m.d.sync += self.w_rdy.eq(~Mux(free, 0, skid_full | write))
+            m.d.sync += [skid.eq(self.w_data), self.w_rdy.eq(0)]
         return m
 
 
