@@ -769,7 +769,8 @@ def unstretched_sweep(base, depths, specs, n: int, seed: int = 0) -> Sweep:
 
 
 def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
-                   names=None, n: int | None = None, depths=None, seed: int = 0) -> dict:
+                   names=None, n: int | None = None, depths=None, seed: int = 0,
+                   n_max: dict | None = None) -> dict:
     """``albcap bench accuracy``: the depth sweep of every method and the side studies.
 
     Parameters
@@ -785,6 +786,9 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
         Shots per depth (overrides the default of the run).
     depths : sequence of float, optional
         Depths [m] (overrides the default of the run).
+    n_max : dict, optional
+        Shots per depth at most, by method name (default: the run's caps, above; ``{}``:
+        ``n`` for every method). The JSON states each method's count (``n_per_depth``).
 
     Returns
     -------
@@ -802,7 +806,9 @@ def bench_accuracy(quick: bool = False, scheduler=None, progress: bool = True,
     if not depths or any(not (0 < float(d) <= 200) for d in depths):
         raise ValueError(f"depths must be in 0 < depth <= 200 m, not {depths!r}")
     known = load_methods()
-    specs = method_specs(names, known, n_max=N_MAX_QUICK if quick else N_MAX_FULL)
+    if n_max is None:
+        n_max = N_MAX_QUICK if quick else N_MAX_FULL
+    specs = method_specs(names, known, n_max=n_max)
     base = study_base(depths)
     pts = tuple(Point(base, float(d), float(d)) for d in depths)
     one = dataclasses.replace(base, gains=(100.0, 100.0, 100.0))

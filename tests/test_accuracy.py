@@ -321,6 +321,21 @@ class TestCli:
         assert isinstance(m["us_per_waveform"], float)
 
 
+    @needs_methods
+    def test_explicit_shots_lift_the_slow_fits_cap(self, tmp_path, capsys):
+        """``--shots`` is what every method runs: the quick run caps ``gpg_lm`` at 20 shots
+        only when no count is given (a cap under an explicit count once hid two confident
+        wrong depths from a 100-shot stability run)."""
+        from model.accuracy import N_MAX_QUICK
+
+        argv = ["bench", "accuracy", "--json", "--quick", "--scheduler", "sync", "--no-progress",
+                "--methods", "gpg_lm", "--depths", "4", "--out", str(tmp_path / "a.json")]
+        n = N_MAX_QUICK["gpg_lm"] + 1
+        assert main([*argv, "--shots", str(n)]) == 0
+        (m,) = json.loads(capsys.readouterr().out)["methods"]
+        assert m["n_per_depth"] == n
+
+
 def test_onchip_fpga_time_picks_the_fastest_fitting_join():
     """The on-chip time per waveform comes from the measured join whose taps_max holds the
     bank; the speed target uses it, and says so, when there is one."""

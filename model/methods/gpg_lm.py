@@ -24,10 +24,13 @@ def gpg_model(t: np.ndarray, p: np.ndarray) -> np.ndarray:
     (f, 0)``, zero outside ``[a, f]`` (eq. 4); corners out of order are taken sorted.
     """
     a_s, m_s, s_s, a_b, m_b, s_b = p[:6]
-    xs = np.sort(p[6:11])
-    q = np.interp(t, xs, [0.0, p[11], p[12], p[13], 0.0], left=0.0, right=0.0)
-    return (a_s * np.exp(-0.5 * ((t - m_s) / s_s) ** 2) + q
+    return (a_s * np.exp(-0.5 * ((t - m_s) / s_s) ** 2) + _pentagon(t, p)
             + a_b * np.exp(-0.5 * ((t - m_b) / s_b) ** 2))
+
+
+def _pentagon(t: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The water column's term ``Q`` of :func:`gpg_model` alone, at times ``t`` (samples)."""
+    return np.interp(t, np.sort(p[6:11]), [0.0, p[11], p[12], p[13], 0.0], left=0.0, right=0.0)
 
 
 class GpgLM(PeaksFloat):
@@ -69,9 +72,23 @@ class GpgLM(PeaksFloat):
     (``max_nfev = 200`` evaluations, the Jacobian's finite differences not counted); ``mu_s``
     or ``mu_b`` outside the window or more than 4 pulse sigmas
     from the picked peak; ``A_s <= 0``; ``A_b`` below 3 noise deviations; ``s_b`` outside
-    0.3..10 x its Table 3 value; then bottom not 6 ns after the surface. (Pentagon corners
-    that cross during the fit are not flagged: the pentagon only models the column under the
-    two returns, and the model sorts them.) Weak (besides the weak detections it inherits):
+    0.3..10 x its Table 3 value; the column below zero anywhere in the window by more than
+    ``column_dip = 0.25`` of the window's largest sample; then bottom not 6 ns after the
+    surface. (Pentagon corners that cross during the fit are not flagged: the pentagon only
+    models the column under the two returns, and the model sorts them.)
+
+    The column check: the column is backscatter and cannot be negative; a fit that drives it
+    far below zero has traded the components, two Gaussians higher than the waveform and a
+    column cancelling the surplus between them, their means pulled in between the returns.
+    Table 3's start led there in very clear shallow water under a bright bottom (the stability
+    suite's ``saturated_bottom`` at 1.5 m, 2 shots of 100: the column's start, read from the
+    smoothed waveform, 2.4-6 times its level between the returns; fitted Gaussians 1.4-3.4
+    times the returns over a column 1.4-2 times the waveform's peak below zero, weighted
+    residuals about 100 times the right fit's, 0.75 m for 1.5 m). Good fits dip to 0.12 of the
+    peak at most (``shallow`` 1.5 m, where the surface is not quite Gaussian). A start that
+    fails it leaves the next one to fit (no column: right, there).
+
+    Weak (besides the weak detections it inherits):
     a waveform clipped in every channel (``FloatWave.clipped``): the Gaussians are then fitted
     to a cut-off top.
     """
@@ -81,6 +98,8 @@ class GpgLM(PeaksFloat):
     fits_shape = True
     error_bound_m = 0.5
     max_nfev = 200
+    #: deepest the fitted column may dip below zero, as a fraction of the window's largest sample
+    column_dip = 0.25
     #: the per-survey depth table runs one fit per depth: 1 m steps keep it short
     table_step_m = 1.0
 
@@ -152,6 +171,10 @@ class GpgLM(PeaksFloat):
             a_s, m_s, _, a_b, m_b, sb = f.x[:6]
             if (i0 <= m_s < i1 and i0 <= m_b < i1 and a_s > 0 and a_b > 3 * noise
                     and 0.3 * s_b <= abs(sb) <= 10 * s_b and abs(m_b - mu_b) <= 4 * s_s
-                    and abs(m_s - mu_s) <= 4 * s_s):
+                    and abs(m_s - mu_s) <= 4 * s_s
+                    # the column is backscatter, never negative: one far below zero cancels
+                    # two Gaussians that overshoot the waveform, a fit of another shape whose
+                    # means sit between the returns (class docstring)
+                    and _pentagon(t, f.x).min() >= -self.column_dip * w.max()):
                 return m_s, m_b
         return None
