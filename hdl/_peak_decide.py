@@ -27,11 +27,11 @@ from functools import reduce
 from operator import and_, or_
 from typing import NamedTuple
 
-from amaranth.hdl import Array, Const, Mux, Signal, unsigned
+from amaranth.hdl import Array, Cat, Const, Mux, Signal, unsigned
 from amaranth.lib import data
 
 from ._peak_common import _POS, thr_as_key
-from ._primitives import _delay, _reg, _sub_sign
+from ._primitives import _delay, _ram_delay, _reg, _sub_sign
 from .matched_filter import TAG_WIDTH
 from .peak_detect import _KEY, _Y, record_layout
 
@@ -94,18 +94,26 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
         m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, stats.bound)
     s_found, sep_at, d3_new, d3_elig = _surface(m, top.surface, L, d2, d2_valid, d2_peak,
                                                 d2a_cpos, d2_cpos, ms_le)
-    # the beat's samples travel with it to C (4 depth + 8 clocks after D2)
-    bd = _delay(m, d2, 4 * depth + 8, "beat")
+    # The beat travels with its valid bit to C, 4 depth + 8 clocks after D2; it is read at
+    # D3 (bd1: everything), R (bt_r, 2 depth + 2 clocks on: the samples), B2 (bt_b, 4 depth
+    # + 6 clocks on: samples, templates, base, first) and C (bt_c: last, long). The long
+    # stretch to B2 is a LUT RAM (hdl._primitives._ram_delay): as registers it was 6 of the
+    # one-lane detector's 8 x 101 delay flip-flops, a fifth of all of them (22 stages of
+    # 370 bits at ten lanes). The valid bits stay registers: they gate every use of a word.
     vd = _delay(m, d2_valid, 4 * depth + 8, "valid")
-    s_fin = _surface_record(m, L, rec, bd, vd, d3_new, sep_at, s_found, ms_lane)
-    pm, seg = _prefix_minimum(m, L, depth, bd, d3_new)
+    bd1 = _reg(m, d2, d2.shape(), "beat_1")
+    bt_r = _delay(m, bd1.e, 2 * depth + 2, "beat_r")[-1]
+    bt_b = _ram_delay(m, bd1, 4 * depth + 6, "beat_b")
+    bt_c = _reg(m, Cat(bt_b.last, bt_b.long), 2, "beat_c")
+    s_fin = _surface_record(m, L, rec, bd1, vd, d3_new, sep_at, s_found, ms_lane)
+    pm, seg = _prefix_minimum(m, L, depth, bd1, d3_new)
     # "eligible as a bottom" travels beside the minimum to R
     elig = _delay(m, d3_elig, 2 * depth + 1, "elig")
     run_min = _running_minimum(m, L, depth, pm, seg, vd)
     elig_v = _reg(m, elig[-1], L, "elig_v")
-    win, node = _best_lane(m, cfg, L, depth, bd, run_min, elig_v,
+    win, node = _best_lane(m, cfg, L, depth, bt_r, run_min, elig_v,
                            stats.cur_thr_k if LA else stats.thr, LA)
-    return FrameEnd(s_fin, *_bottom(m, cfg, L, rec, bd, vd, win, node))
+    return FrameEnd(s_fin, *_bottom(m, cfg, L, rec, bt_b, bt_c[0], bt_c[1], vd, win, node))
 
 
 def _lane_record(m, rec, bt, j, n):
@@ -215,17 +223,17 @@ def _surface(m, surface, L, d2, d2_valid, d2_peak, d2a_cpos, d2_cpos, ms_le):
     return s_found, sep_at, d3_new, d3_elig
 
 
-def _surface_record(m, L, rec, bd, vd, d3_new, sep_at, s_found, ms_lane):
-    """D4: ``s + min_sep`` and the surface's record; at the frame's last beat, the snapshot
-    for the divider (``s_found`` already holds the frame's final answer). Returns it
-    (``s_fin``)."""
+def _surface_record(m, L, rec, bd1, vd, d3_new, sep_at, s_found, ms_lane):
+    """D4: ``s + min_sep`` and the surface's record from the beat at D3 (``bd1``); at the
+    frame's last beat, the snapshot for the divider (``s_found`` already holds the frame's
+    final answer). Returns it (``s_fin``)."""
     with m.If(d3_new.any()):
-        m.d.sync += sep_at.eq(reduce(or_, [Mux(d3_new[j], bd[1].base + ms_lane[j], 0)
+        m.d.sync += sep_at.eq(reduce(or_, [Mux(d3_new[j], bd1.base + ms_lane[j], 0)
                                            for j in range(L)]))
     srec, s_fin = Signal(rec), Signal(rec)
     s_new = Signal(rec)
     m.d.comb += s_new.eq(reduce(or_, [
-        Mux(d3_new[j], _lane_record(m, rec, bd[1], j, bd[1].base + (j - 1)).as_value(), 0)
+        Mux(d3_new[j], _lane_record(m, rec, bd1, j, bd1.base + (j - 1)).as_value(), 0)
         for j in range(L)]))
     with m.If(d3_new.any()):
         m.d.sync += srec.eq(s_new)
@@ -233,22 +241,22 @@ def _surface_record(m, L, rec, bd, vd, d3_new, sep_at, s_found, ms_lane):
     # surface if it had one; the next frame's surface can land in srec only at that edge):
     # the choice between the new record, srec and none fanned out to every record bit from
     # two LUTs was the worst path at two lanes (5.9 ns). The divider loads s_fin much later.
-    s_fin_at = _reg(m, vd[1] & bd[1].last, 1, "s_fin_at")
+    s_fin_at = _reg(m, vd[1] & bd1.last, 1, "s_fin_at")
     s_fin_found = _reg(m, s_found, 1, "s_fin_found")  # (s_found includes this beat's)
     with m.If(s_fin_at):
         m.d.sync += s_fin.eq(Mux(s_fin_found, srec.as_value(), 0))
     return s_fin
 
 
-def _prefix_minimum(m, L, depth, bd, d3_new):
+def _prefix_minimum(m, L, depth, bd1, d3_new):
     """Rule 2: the minimum of ``y`` from the surface on, across the lanes (``2 depth``
-    clocks from D4). Returns per lane the minimum and whether its segment starts at the
-    surface."""
+    clocks from D4), from the beat at D3 (``bd1``). Returns per lane the minimum and whether
+    its segment starts at the surface."""
     # A segmented prefix minimum (Hillis-Steele, one level per clock): the surface's lane
     # starts a segment (flag), so lanes from it on see the minimum from the surface only.
     # Each level takes two clocks, the compares and then the selects (both in one clock were
     # the worst path at two lanes).
-    pm = [bd[1].e[j + 1] for j in range(L)]
+    pm = [bd1.e[j + 1] for j in range(L)]
     seg = [d3_new[j] for j in range(L)]
     for lev in range(depth):
         step = 1 << lev
@@ -296,19 +304,19 @@ def _running_minimum(m, L, depth, pm, seg, vd):
     return [_reg(m, sel[j], _Y, f"run_min{j}") for j in range(L)]
 
 
-def _best_lane(m, cfg, L, depth, bd, run_min, elig_v, thr, LA):
+def _best_lane(m, cfg, L, depth, e_r, run_min, elig_v, thr, LA):
     """R, K and the max-tree: the key per lane, eligible and (rule 2) rising above ``thr``,
-    then the best lane. Returns the tree's root (``ok``, ``key``, ``idx``; registered with the
-    beat at ``bd[4 depth + 6]``, B1) and its layout.
+    then the best lane, from the beat's samples at R (``e_r``). Returns the tree's root
+    (``ok``, ``key``, ``idx``; registered with the beat 4 depth + 6 clocks after D3, B1) and
+    its layout.
 
     ``thr`` is the statistics' ``thr`` without the lookahead (capped here, once per frame),
     the frame's capped ``cur_thr_k`` with it (carried with the beat from D1).
     """
     # R: the key per lane; K: eligible and, for rule 2, rising above thr
-    bt = bd[2 * depth + 3]
     keys = []
     for j in range(L):
-        b = bt.e[j + 1]
+        b = e_r[j + 1]
         keys.append(_reg(m, Mux(cfg.bottom_rule == 0, j,
                                 Mux(cfg.bottom_rule == 1, b, b - run_min[j])), _KEY, f"key{j}"))
     # (the rise's compare with thr registered on its own: with the AND into ok it was a worst
@@ -350,9 +358,11 @@ def _best_lane(m, cfg, L, depth, bd, run_min, elig_v, thr, LA):
     return level[0], node
 
 
-def _bottom(m, cfg, L, rec, bd, vd, win, node):
-    """B1, B2: the bottom against the frame's best so far; C: its record. Returns the
-    frame's bottom record at its last beat (``b_fin``), ``end_valid`` and ``end_long``."""
+def _bottom(m, cfg, L, rec, bt, last_c, long_c, vd, win, node):
+    """B1, B2: the bottom against the frame's best so far, with the beat at B2 (``bt``); C:
+    its record, with the beat's ``last`` and ``long`` at C (``last_c``, ``long_c``). Returns
+    the frame's bottom record at its last beat (``b_fin``), ``end_valid`` and
+    ``end_long``."""
     # The loop carries found and the best key; the record follows a clock later (C). A
     # compare in the loop's clock was a worst path, so B1 compares and B2 decides: B1 sees
     # best as it stands (at least every beat up to two before: B2 of the beat before may land
@@ -365,7 +375,7 @@ def _bottom(m, cfg, L, rec, bd, vd, win, node):
     with m.If(vd[-3]):
         m.d.sync += pkey.eq(win.key)
     win = _reg(m, win, node, "win_b2")
-    bt, b_valid = bd[-2], vd[-2]
+    b_valid = vd[-2]
     found_b = b_found & ~bt.first
     take, took_prev = Signal(name="b_take"), Signal(name="b_took_prev")
     m.d.comb += take.eq(b_valid & win.ok & ((cfg.bottom_rule == 0) | ~found_b
@@ -383,7 +393,7 @@ def _bottom(m, cfg, L, rec, bd, vd, win, node):
     with m.If(c_take):
         m.d.sync += brec.eq(c_rec)
     m.d.sync += end_valid.eq(0)
-    with m.If(vd[-1] & bd[-1].last):
+    with m.If(vd[-1] & last_c):
         m.d.sync += [b_fin.eq(Mux(c_take, c_rec.as_value(), Mux(b_found, brec.as_value(), 0))),
-                     end_valid.eq(1), end_long.eq(bd[-1].long)]
+                     end_valid.eq(1), end_long.eq(long_c)]
     return b_fin, end_valid, end_long

@@ -293,16 +293,21 @@ def elaborate(top, platform):
         # of the three beats' flags before the decision put the port's beat (the filter's
         # output) five LUTs from go, the pipeline's worst path (6.64 ns, 4.7 of it routing).
         # A beat loaded now (skid or port) goes on the tag match only if it is not a first.
+        # `busy_nx` (busy after this clock: D1's last beat goes now, or a result waits on)
+        # chooses last, between the decisions worked out for busy and for not busy: as a
+        # term of each beat's decision, D1's `last` -> `go & last` -> busy_nx -> the
+        # decision -> go was five LUTs, the 3 x 3 interleaved build's worst path (8.34 ns).
         busy = Signal()
         busy_nx = (go & d1.last) | (busy & ~(top.o.valid & top.o.ready))
         tag_eq = Signal(name="tag_eq")  # thr_tag == d1_tag
 
-        def may_go(b, loaded):
-            return ((~b.needs | (tag_eq & (~b.beat.first if loaded else 1)))
-                    & (~b.beat.last | ~busy_nx))
-        m.d.sync += go.eq(Mux(free, Mux(s_valid, may_go(skid, True),
-                                        top.i.valid & may_go(inb, True)),
-                              d1_valid & may_go(h1, False)))
+        def go_if(busy_next: bool):
+            def may_go(b, loaded):
+                ok = ~b.needs | (tag_eq & (~b.beat.first if loaded else 1))
+                return ok & ~b.beat.last if busy_next else ok
+            return Mux(free, Mux(s_valid, may_go(skid, True), top.i.valid & may_go(inb, True)),
+                       d1_valid & may_go(h1, False))
+        m.d.sync += go.eq(Mux(busy_nx, go_if(True), go_if(False)))
 
         st_beat, st_base, st_tag, st_valid = d1, d1_base, d1_tag, fresh
     else:
@@ -357,16 +362,23 @@ def elaborate(top, platform):
         # thr_tag and tag_eq, from what thr_tag and D1's tag will be: a compare per pair of
         # candidates (all registers), the loads only choosing. The compare of thr_tag with
         # D1's tag in go's own clock was the pipeline's worst path (D1's tag -> the 9-bit
-        # equality -> go, 7.40 ns, 5.5 of it routing).
+        # equality -> go, 7.40 ns, 5.5 of it routing). `new` (thr_tag is loaded now) chooses
+        # last, between the two picks: it fans out to thr_tag's enables too, and as the
+        # select of each pick's four candidates it sat five LUTs from tag_eq (the pipeline's
+        # worst path in one seed of three, 6.72 ns, 4.8 of it routing).
         new, new_tag = stats.bound_new, stats.bound_tag
         with m.If(new):
             m.d.sync += thr_tag.eq(new_tag)
 
-        def eq_next(t):
-            return Mux(new, new_tag == t, thr_tag == t)
-        m.d.sync += tag_eq.eq(Mux(free, Mux(s_valid, eq_next(skid.tag),
-                                            Mux(d.first, eq_next(tag_p1), eq_next(tag))),
-                                  eq_next(d1_tag)))
+        # While D1 keeps its beat and thr_tag stays, tag_eq stays: thr_tag == d1_tag is
+        # tag_eq itself, not a 9-bit compare (from D1's tag, through the compare's three
+        # LUTs, it was the pipeline's worst path in a seed, 6.61 ns).
+        def pick(ref, held):  # ref == the tag D1 holds next; `held`: ref == d1_tag
+            return Mux(free, Mux(s_valid, ref == skid.tag,
+                                 Mux(d.first, ref == tag_p1, ref == tag)),
+                       held)
+        m.d.sync += tag_eq.eq(Mux(new, pick(new_tag, new_tag == d1_tag),
+                                  pick(thr_tag, tag_eq)))
     # ---- the decision, D2 to C (hdl._peak_decide), as the beat leaves D1 ----
     s_fin, b_fin, end_valid, end_long = decide(
         m, top, levels=depth, go=go, d1=d1, d1_base=d1_base, d1_needs=d1_needs, d1_tag=d1_tag,

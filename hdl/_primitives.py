@@ -20,8 +20,8 @@ from amaranth.lib.wiring import In, Out
 
 from ._bram import BlockRAM
 
-__all__ = ["OneHotFSM", "_Store", "_delay", "_le", "_output_buffer", "_reg", "_room", "_step",
-           "_sub_sign", "_sum_tree"]
+__all__ = ["OneHotFSM", "_Store", "_delay", "_le", "_output_buffer", "_ram_delay", "_reg",
+           "_room", "_step", "_sub_sign", "_sum_tree"]
 
 
 def _le(a, b):
@@ -79,6 +79,30 @@ def _delay(m, value, n, name, shape=None):
     for i in range(n):
         taps.append(_reg(m, taps[-1], shape, f"{name}_{i + 1}"))
     return taps
+
+
+def _ram_delay(m, value, n, name):
+    """``value`` delayed ``n`` clocks (free running, ``n >= 2``) through a LUT RAM.
+
+    For a wide value carried over many clocks: ``n`` registers per bit become a memory of
+    ``n`` words (rounded up to a power of two; the ECP5's 16 x 4 LUT RAMs) and one output
+    register. Each clock writes ``value`` at one pointer and reads, asynchronously, the word
+    written ``n - 1`` clocks before at another (both counters, so that the read address
+    comes from a register, not an adder), into the output register. The memory's words start
+    undefined (zero in simulation), so the delayed value is meaningful only where the value
+    ``n`` clocks before was written: a caller gates it with a valid delayed in registers.
+    Returns the output register, ``name``.
+    """
+    shape = value.shape()
+    size = max(2, 1 << (n - 1).bit_length())
+    mem = memory.Memory(shape=shape, depth=size, init=[])
+    m.submodules[f"{name}_mem"] = mem
+    wp, rp = mem.write_port(), mem.read_port(domain="comb")
+    w_ptr = Signal(range(size), name=f"{name}_wp")
+    r_ptr = Signal(range(size), init=(1 - n) % size, name=f"{name}_rp")
+    m.d.sync += [w_ptr.eq(w_ptr + 1), r_ptr.eq(r_ptr + 1)]
+    m.d.comb += [wp.addr.eq(w_ptr), wp.data.eq(value), wp.en.eq(1), rp.addr.eq(r_ptr)]
+    return _reg(m, rp.data, shape, name)
 
 
 def _sum_tree(m, values, name):
@@ -331,18 +355,27 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take, ahead=No
     head = Signal.like(pipe, name="obuf_head")
     held = Signal(range(capacity + 1))  # entries in use
     any_held = Signal()  # held != 0
+    # `any_held` again, inverted (so that synthesis keeps both): the select of the payload
+    # mux, whose fan-out to every payload bit kept `any_held` far from the handshake's logic
+    # (its first hop, 1.2 ns, began the pipeline's worst path in one seed)
+    show_pipe = Signal(init=1)
     m.d.comb += [
         wp.addr.eq(w_ptr), wp.data.eq(pipe), wp.en.eq(pipe_valid),
         rp.addr.eq(r_next),
         o.valid.eq(any_held | pipe_valid),
-        o.payload.eq(Mux(any_held, head, pipe)),
+        o.payload.eq(Mux(show_pipe, pipe, head)),
     ]
     pop = take & any_held  # the head leaves
     push = pipe_valid & ~(take & ~any_held)  # the pipeline's beat is kept
     # No arithmetic after the handshake: the count is decoded from its register, and the
     # handshake only chooses between decoded flags and values made from the registers.
-    held_is0, held_is1 = Signal(), Signal()
-    m.d.comb += [held_is0.eq(held == 0), held_is1.eq(held == 1)]
+    # "held == 1" is a register of its own, its next value chosen among the count's compares
+    # (held == 1 as decoded, the count's 5-bit compare, was two of the five LUTs from
+    # `any_held` to the markers shown ahead, the pipeline's worst path in one seed, 7.08 ns);
+    # "held == 0" is ~any_held.
+    held_is0, held_is1 = ~any_held, Signal()
+    m.d.sync += held_is1.eq(Mux(push & ~pop, held == 0,
+                                Mux(pop & ~push, held == 2, held == 1)))
     w_up, r_up = Signal.like(w_ptr), Signal.like(r_next)
     held_up, held_down = Signal.like(held), Signal.like(held)
     m.d.comb += [w_up.eq(w_ptr + 1), r_up.eq(r_next + 1),
@@ -367,6 +400,7 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, take, ahead=No
         r_next.eq(Mux(pop, r_up, r_next)),
         held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
         any_held.eq(Mux(take, held_tk, held_no)),
+        show_pipe.eq(~Mux(take, held_tk, held_no)),
     ]
     # The fields shown ahead: what the head-or-pipe mux shows next, the take choosing as for
     # the head (through the take into the pop, the head's and the count's next values and

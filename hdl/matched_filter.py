@@ -561,11 +561,10 @@ class MatchedFilter(wiring.Component):
         tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # so the first frame is tag 0
         s_pend = Signal()  # the frame's surface was taken (start holds s + bin_offset)
         start = Signal(N_WIDTH + 1 + by_name("bin_offset").width)  # s + bin_offset
-        active = Signal()  # k(n) >= 1 territory reached (n >= start)
         k = Signal(_K_SHAPE)  # template of the last accepted sample
         left = Signal(signed(by_name("bin_len").width + 1))  # bin_len - 1 - samples in the bin
         left1 = Signal.like(left)  # left - 1
-        match = Signal()
+        match, active = Signal(), Signal()
         bin_end = left[-1]  # the bin is full (left = -1)
         # the values of `left` and `left1` after a bin's first sample (bin_len >= 1), a clock
         # after bin_len
@@ -596,45 +595,48 @@ class MatchedFilter(wiring.Component):
             m.d.comb += k_sel.eq(k)
 
         # the next clock's state, for the compares made ahead
-        n_nx, cnt_nx_is1, cnt_nx_inc = Signal.like(n), Signal(), Signal()
-        s_known_nx, active_nx = Signal(), Signal()
-        m.d.comb += [n_nx.eq(n), s_known_nx.eq(s_pend), active_nx.eq(active)]
+        cnt_nx_is1, cnt_nx_inc = Signal(), Signal()
+        s_known_nx = Signal()
+        m.d.comb += s_known_nx.eq(s_pend)
         with m.If(accept):
-            m.d.comb += n_nx.eq(Mux(d.first, 1, n1))
-            m.d.sync += [n.eq(n_nx), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel)]
+            m.d.sync += [n.eq(Mux(d.first, 1, n1)), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel)]
             with m.If(d.first):
-                m.d.comb += [s_known_nx.eq(0), active_nx.eq(0)]
+                m.d.comb += s_known_nx.eq(0)
                 m.d.sync += [tag.eq(tag + 1), s_pend.eq(0)]
             with m.Elif(match):
-                m.d.comb += [active_nx.eq(1), cnt_nx_is1.eq(1)]
+                m.d.comb += cnt_nx_is1.eq(1)
             with m.Elif(active):
                 m.d.comb += [cnt_nx_is1.eq(bin_end), cnt_nx_inc.eq(~bin_end)]
         with m.If(cnt_nx_is1):
             m.d.sync += [left.eq(len_m2), left1.eq(len_m3)]
         with m.Elif(cnt_nx_inc):
             m.d.sync += [left.eq(left1), left1.eq(left1 - 1)]
-        # "the next sample is s + bin_offset": n1 == start if one is accepted now, else
-        # n == start (a frame's first sample clears s_known_nx, so its case needs none). This
-        # compare of a start taken at the last edge cannot be made earlier without a clock of
-        # SURFACE_APPLY, so it is kept short: start >= 2^N_WIDTH (no sample reaches it) is its
-        # own register `far_q`, beside the compare of the low N_WIDTH bits; each equality is
-        # two compares, made as the signs of subtractions from registers (14-bit carry chains,
-        # where a 30-bit == was a tree of LUTs), and accept only chooses between them. The
-        # result `eq_q` is registered alone, with `s_known` (= s_known_nx), and `match` is one
-        # LUT of four registers: the register at the end of the compare has one load and sits
-        # by it, not by the template logic that `match` drives.
+        # "the next sample is s + bin_offset" (`match`) and "a sample at or past it was taken"
+        # (`active`: k(n) >= 1 territory), both from compares made a clock ahead, for the
+        # sample n1 if one is accepted now, else n (a frame's first sample clears s_known_nx,
+        # so its case needs none): n1 == start and n1 > start (that is n >= start), or n ==
+        # start and n > start. `active` was a set-clear register of its own, set by an
+        # accepted `match`: its next value then hung on `match`, and that loop (active ->
+        # match -> the enables of `active`) was the pipeline's worst path in two seeds of three
+        # (7.4 and 8.1 ns, three quarters of it routing). Now neither has state: each is one
+        # LUT of two registers. The two are the same once the surface is known before n
+        # reaches start, which `bin_offset >= max_unsurfaced + 1` guarantees (the register's
+        # floor). The compares cannot be made earlier without a clock of SURFACE_APPLY, so
+        # they are kept short: each equality is two compares, made as the signs of
+        # subtractions from registers (14-bit carry chains, where a 30-bit == was a tree of
+        # LUTs), and accept only chooses between them; start >= 2^N_WIDTH (no sample reaches
+        # it) goes into `known` with s_known_nx, beside the compare of the low N_WIDTH bits.
         start_lo = start[:N_WIDTH]
         ge_n1 = _le(start_lo, n1)  # n + 1 >= start
         ge_n = _le(start_lo, n)  # n >= start
         gt_n = ~_le(n, start_lo)  # n > start
-        eq_q, far_q, s_known = Signal(), Signal(), Signal()
+        eq_q, act_q, known = Signal(), Signal(), Signal()
         m.d.sync += [
-            active.eq(active_nx),
-            s_known.eq(s_known_nx),
+            known.eq(s_known_nx & (start[N_WIDTH:] == 0)),
             eq_q.eq(Mux(accept, ge_n1 & ~ge_n, ge_n & ~gt_n)),
-            far_q.eq(start[N_WIDTH:] != 0),
+            act_q.eq(Mux(accept, ge_n, gt_n)),
         ]
-        m.d.comb += match.eq(s_known & ~active & eq_q & ~far_q)
+        m.d.comb += [match.eq(known & eq_q), active.eq(known & act_q)]
 
         # ---- stages 1, 2: the sample (twice) and the template `k` (registered: the template
         # decision is the longest path before the memories); stage 3: the delay line, beside
