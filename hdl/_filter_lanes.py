@@ -86,7 +86,7 @@ def elaborate(mf, platform) -> Module:
     # flow control as the one-lane design: a free-running pipeline into an output buffer of
     # `capacity` beats, i.ready registered
     capacity = lat + 1
-    accept, take, accept_dl = _flow_control(m, mf, capacity)
+    accept, _take, accept_dl = _flow_control(m, mf, capacity)
 
     # ---- frame state ----
     n = Signal(N_WIDTH)  # index of the next beat's lane-0 sample
@@ -298,6 +298,6 @@ def elaborate(mf, platform) -> Module:
     # interleaved build's worst path, 8.6 ns, 6.4 of it routing.) ----
     # (the markers from registers of their own, as at one lane)
     before = sb[lat - 2]
-    _output_buffer(m, mf.o, capacity, pipe, last_sb.valid, take,
+    _output_buffer(m, mf.o, capacity, pipe, last_sb.valid,
                    ahead={"first": before.first, "last": before.last})
     return m

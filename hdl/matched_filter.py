@@ -543,7 +543,7 @@ class MatchedFilter(wiring.Component):
         capacity = CAPACITY
         groups = min(K_MAX, L_MAX)  # tap groups, each with its template copy and write link
         wlink, whold = _coef_chain(m, self.coef, groups)
-        accept, take, accept_dl = _flow_control(m, self, capacity, hold_nx=whold,
+        accept, _take, accept_dl = _flow_control(m, self, capacity, hold_nx=whold,
                                                 decoded=True)
 
         # ---- frame state: sample counter, tag, surface, template ----
@@ -732,6 +732,6 @@ class MatchedFilter(wiring.Component):
 
         # the markers the detector decides on from registers of their own (_output_buffer)
         before = sb[LATENCY - 2]
-        _output_buffer(m, self.o, capacity, pipe, last_sb.valid, take,
+        _output_buffer(m, self.o, capacity, pipe, last_sb.valid,
                        ahead={"first": before.first, "last": before.last})
         return m

@@ -171,5 +171,5 @@ class Stitch(wiring.Component):
             pipe.eq(Mux(over, hi, Mux(under, lo, low))),
             v4.eq(v3),
         ]
-        _output_buffer(m, self.o, CAPACITY, pipe, v4, take)
+        _output_buffer(m, self.o, CAPACITY, pipe, v4)
         return m
