@@ -21,7 +21,7 @@ from amaranth.lib import data
 from model.matched_filter import OUT_WIDTH
 
 from ._peak_common import _QUEUE, thr_as_key
-from ._primitives import _delay, _reg, _Store, _sub_sign, _sum_tree
+from ._primitives import _delay, _delay_to, _reg, _Store, _sub_sign, _sum_tree
 from .matched_filter import TAG_WIDTH, RegisteredMultiplier
 from .peak_detect import _KEY, _P_MAX_LOG2, _Y, NOISE_MAX, NOISE_WIDTH, THR_WIDTH
 
@@ -152,8 +152,9 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     with m.If(sd[depth + 1].valid & sd[depth + 1].close_mu):
         m.d.sync += mu.eq(window_shift(mu_sum))
     # |y - mu| on the noise lanes, the clock after mu is registered for the closing beat
-    dy = _delay(m, s1_y, depth + 2, "dev_y")[-1]
-    dm = _delay(m, s1_dev, depth + 2, "dev_m")[-1]
+    # (LUT RAM from four clocks on, _delay_to: 1 440 flip-flops at ten lanes)
+    dy = _delay_to(m, s1_y, depth + 2, "dev_y")
+    dm = _delay_to(m, s1_dev, depth + 2, "dev_m")
     devs = []
     for j in range(L):
         # y - mu, then its magnitude a clock later (a subtract, a compare and a negation in one
@@ -238,7 +239,7 @@ def _frame_queue(m, t_dev, mu_at, noise, thr, bound, q_pop, stats_ok):
     qrec = data.StructLayout({"mu": _Y, "noise": NOISE_WIDTH, "thr": THR_WIDTH, "bound": _Y})
     q = m.submodules.la_stats = _Store(qrec.size, _QUEUE)
     entry = Signal(qrec, name="la_entry")
-    m.d.comb += [entry.mu.eq(mu_at[-1]), entry.noise.eq(_delay(m, noise, 6, "la_noise")[-1]),
+    m.d.comb += [entry.mu.eq(mu_at[-1]), entry.noise.eq(_delay_to(m, noise, 6, "la_noise")),
                  entry.thr.eq(_delay(m, thr, 2, "la_thr")[-1]), entry.bound.eq(bound),
                  q.w_data.eq(entry), q.w_en.eq(push_at), q.w_keep.eq(push_at)]
     cur, cur_valid = Signal(qrec, name="la_cur"), Signal(name="la_cur_valid")

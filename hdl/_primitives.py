@@ -20,8 +20,8 @@ from amaranth.lib.wiring import In, Out
 
 from ._bram import BlockRAM
 
-__all__ = ["OneHotFSM", "_Store", "_delay", "_le", "_output_buffer", "_ram_delay", "_reg",
-           "_room", "_step", "_sub_sign", "_sum_tree"]
+__all__ = ["RAM_DELAY_MIN", "OneHotFSM", "_Store", "_delay", "_delay_to", "_le",
+           "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub_sign", "_sum_tree"]
 
 
 def _le(a, b):
@@ -103,6 +103,20 @@ def _ram_delay(m, value, n, name):
     m.d.sync += [w_ptr.eq(w_ptr + 1), r_ptr.eq(r_ptr + 1)]
     m.d.comb += [wp.addr.eq(w_ptr), wp.data.eq(value), wp.en.eq(1), rp.addr.eq(r_ptr)]
     return _reg(m, rp.data, shape, name)
+
+
+#: Clocks of delay from which :func:`_delay_to` uses a LUT RAM: below it, the RAM's pointers
+#: and output register cost about what the registers would.
+RAM_DELAY_MIN = 4
+
+
+def _delay_to(m, value, n, name):
+    """``value`` delayed ``n`` clocks (free running), the end only: registers (:func:`_delay`)
+    for a short delay, a LUT RAM (:func:`_ram_delay`, its words meaningful only where the
+    value ``n`` clocks before was written) from :data:`RAM_DELAY_MIN` clocks on."""
+    if n >= RAM_DELAY_MIN:
+        return _ram_delay(m, value, n, name)
+    return _delay(m, value, n, name)[-1]
 
 
 def _sum_tree(m, values, name):
