@@ -383,6 +383,25 @@ class TestGpgColumn:
     ``GpgLM.column_dip`` of the waveform's peak: such a column cancels two Gaussians that
     overshoot the waveform, a fit of another shape (``docs/methods.md``, ``gpg_lm``)."""
 
+    @staticmethod
+    def suite_shots(regime: str, point: int, depth_m: float, pick):
+        """Shots ``pick`` of the stability suite's first chunk (100 shots, seed 0) at the
+        regime's point ``point`` (of depth ``depth_m``), with the point's survey setup."""
+        import dataclasses
+
+        from model.accuracy import chunk_seed
+        from model.regimes import REGIMES, regime_sweeps
+
+        r = next(r for r in REGIMES if r.name == regime)
+        pt = regime_sweeps((), 100, regimes=(r,))[0].points[point]
+        assert pt.depth_m == depth_m
+        shots = make_shots(pt.scene, pt.depth_m, 100, chunk_seed(f"regime:{regime}", 0, point, 0))
+        pick = np.asarray(pick)
+        return dataclasses.replace(
+            shots, setup=setup_for(pt.survey), adc=shots.adc[pick],
+            truth_depth_m=shots.truth_depth_m[pick], truth_surface_s=shots.truth_surface_s[pick],
+            truth_bottom_s=shots.truth_bottom_s[pick])
+
     def test_no_confident_wrong_depth_saturated_bottom_1_5m(self, monkeypatch):
         """The stability suite's own shots at ``saturated_bottom`` 1.5 m (its seed for the
         point's first chunk), where Table 3's start, its column read from the smoothed waveform
@@ -390,21 +409,7 @@ class TestGpgColumn:
         the returns over a column 1.4-2 times the waveform's peak below zero: shots 47 and 69
         gave 0.75 m and 0.79 m, confidently. Now the start without column fits them, within the
         bound; shots the rule does not touch keep their answer to the bit."""
-        import dataclasses
-
-        from model.accuracy import chunk_seed
-        from model.regimes import REGIMES, regime_sweeps
-
-        r = next(r for r in REGIMES if r.name == "saturated_bottom")
-        pt = regime_sweeps((), 100, regimes=(r,))[0].points[0]
-        assert pt.depth_m == 1.5
-        shots = make_shots(pt.scene, pt.depth_m, 100,
-                           chunk_seed("regime:saturated_bottom", 0, 0, 0))
-        pick = np.array([47, 69, 0, 1, 2])
-        shots = dataclasses.replace(
-            shots, setup=setup_for(pt.survey), adc=shots.adc[pick],
-            truth_depth_m=shots.truth_depth_m[pick], truth_surface_s=shots.truth_surface_s[pick],
-            truth_bottom_s=shots.truth_bottom_s[pick])
+        shots = self.suite_shots("saturated_bottom", 0, 1.5, [47, 69, 0, 1, 2])
         m = get_method("gpg_lm")()
         m.prepare(shots.setup)
         new = run_quiet(m, shots)
@@ -422,20 +427,7 @@ class TestGpgColumn:
         whose column dips the most of all the suite's and the depth sweep's fits (0.12, 0.10
         and 0.10 of the peak: the surface is not quite Gaussian), keep their answers to the bit
         (a rule at 0.1 sends the first two to the next start, 1.3 and 1.8 cm away)."""
-        import dataclasses
-
-        from model.accuracy import chunk_seed
-        from model.regimes import REGIMES, regime_sweeps
-
-        r = next(r for r in REGIMES if r.name == "shallow")
-        pt = regime_sweeps((), 100, regimes=(r,))[0].points[6]
-        assert pt.depth_m == 1.5
-        shots = make_shots(pt.scene, pt.depth_m, 100, chunk_seed("regime:shallow", 0, 6, 0))
-        pick = np.array([41, 33, 48])
-        shots = dataclasses.replace(
-            shots, setup=setup_for(pt.survey), adc=shots.adc[pick],
-            truth_depth_m=shots.truth_depth_m[pick], truth_surface_s=shots.truth_surface_s[pick],
-            truth_bottom_s=shots.truth_bottom_s[pick])
+        shots = self.suite_shots("shallow", 6, 1.5, [41, 33, 48])
         m = get_method("gpg_lm")()
         m.prepare(shots.setup)
         new = run_quiet(m, shots)
