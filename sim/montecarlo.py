@@ -13,6 +13,19 @@ Method (seed 001 section 2.3 and its Fig. 2), made efficient by reciprocity:
 * **Bottom.** A flat Lambertian bottom of albedo ``rho`` turns the laser-leg irradiance ``E`` into
   radiance ``rho E / pi``; the received power is the sum over bottom cells of that radiance times
   the etendue landing in the cell, the two legs' arrival times convolved (FFT per cell).
+* **Cells.** Transmitter and receiver share one axis, so both legs' light on a bottom plane is
+  all but symmetric about the point where that axis meets it and varies with azimuth only
+  through the small tilt of the beam. The cells are therefore polar about that point: rings
+  one eighth of the field-of-view footprint's radius wide (they resolve its edge) cut into
+  ``sectors`` sectors (16 keep the tilt's azimuthal variation). A cell grows with its
+  distance from the axis, where scattering has spread both legs smoothly over metres. Square
+  cells of the ring's width did not: at 23 m in seed 000 water (20 000 packets per leg) half
+  of each leg's weight lands beyond 8 m of the axis, 335 of the 7 450 packets that reached
+  the plane shared a cell with a packet of the other leg, and the return was the sum of 346
+  packet pairs, noisy enough to put a false hump on it. Polar cells pair 5 800 of them
+  (12 900 pairs). On one trace of 400 000 packets both grids give the same returns (shapes
+  within 0.1 % rms of the peak and peak times within 1 mm of depth to 20 m, energies within
+  0.4 %), so the cells change the noise, not the expectation.
 * Nothing on the way down depends on where the bottom is, so one trace records each packet's
   first crossing of every depth plane and serves all depths at once.
 
@@ -37,7 +50,7 @@ MC_DEFAULTS = {
     "c_per_m": 0.54, "b_per_m": 0.43, "g": 0.924, "fov_mrad": 40.0, "altitude_m": 400.0,
     "pulse_fwhm_s": 2e-9, "n_water": 1.33, "incidence_deg": 0.0, "divergence_mrad": 0.2,
     "aperture_m2": math.pi * 0.1 ** 2, "bottom_albedo": 1.0, "bin_s": 0.1e-9,
-    "window_s": 60e-9, "w_min": 1e-3,
+    "window_s": 60e-9, "w_min": 1e-3, "sectors": 16,
 }
 
 
@@ -174,19 +187,27 @@ def _trace(rng, n_pk, half_angle, depths, p, th_a, r_air):
     return tuple(np.concatenate(col) for col in zip(*recs, strict=True))
 
 
-def _combine(laser, recv, k, cell, t_start, bin_s, n_leg):
-    """Unnormalized bottom impulse response at plane ``k``: per cell, laser leg (x) receiver leg."""
+def _combine(laser, recv, k, centre_x, ring, sectors, t_start, bin_s, n_leg):
+    """Bottom impulse response at plane ``k``, unnormalized: the sum over polar cells of laser
+    leg (x) receiver leg divided by the cell's area [1/m^2].
+
+    The cells are rings ``ring`` [m] wide about ``(centre_x, 0)`` (where the common axis of
+    the transmitter and the receiver meets the plane), each cut into ``sectors`` sectors.
+    """
     legs = []
     for kk, x, y, t, w in (laser, recv):
         m = kk == k
-        ix = np.floor(x[m] / cell).astype(np.int64) + 2**20
-        iy = np.floor(y[m] / cell).astype(np.int64) + 2**20
+        dx, dy = x[m] - centre_x, y[m]
+        ir = np.floor(np.hypot(dx, dy) / ring).astype(np.int64)
+        isec = np.floor((np.arctan2(dy, dx) / (2 * math.pi) + 0.5) * sectors).astype(np.int64)
         tb = np.floor((t[m] - t_start) / bin_s).astype(np.int64)
         ok = (tb >= 0) & (tb < n_leg)
-        legs.append((ix[ok] * 2**21 + iy[ok], tb[ok], w[m][ok]))
+        legs.append((ir[ok] * sectors + np.minimum(isec[ok], sectors - 1), tb[ok], w[m][ok]))
     common = np.intersect1d(legs[0][0], legs[1][0])
     if common.size == 0:
         return np.zeros(2 * n_leg)
+    ir = common // sectors
+    area = math.pi * ring ** 2 * (2 * ir + 1) / sectors
     spectra = []
     for key, tb, w in legs:
         pos = np.minimum(np.searchsorted(common, key), common.size - 1)
@@ -194,7 +215,8 @@ def _combine(laser, recv, k, cell, t_start, bin_s, n_leg):
         hist = np.bincount(pos[keep] * n_leg + tb[keep], weights=w[keep],
                            minlength=common.size * n_leg)
         spectra.append(np.fft.rfft(hist.reshape(common.size, n_leg), n=2 * n_leg, axis=1))
-    return np.fft.irfft((spectra[0] * spectra[1]).sum(axis=0), n=2 * n_leg)
+    prod = spectra[0] * spectra[1] / area[:, None]
+    return np.fft.irfft(prod.sum(axis=0), n=2 * n_leg)
 
 
 def bottom_returns(depths_m=None, n_packets=20000, seed=0, **params) -> MCResult:
@@ -213,7 +235,8 @@ def bottom_returns(depths_m=None, n_packets=20000, seed=0, **params) -> MCResult
         (full angle), ``altitude_m``, ``pulse_fwhm_s``, ``n_water``, ``incidence_deg``,
         ``divergence_mrad`` (full angle), ``aperture_m2``, ``bottom_albedo``, ``bin_s`` (time bin
         [s]), ``window_s`` (time traced after the deepest unscattered echo, one way [s]),
-        ``w_min`` (roulette weight).
+        ``w_min`` (roulette weight), ``sectors`` (azimuthal sectors of the bottom cells, module
+        docstring; 1 would assume a symmetry that a tilted beam does not have).
 
     Returns
     -------
@@ -231,6 +254,9 @@ def bottom_returns(depths_m=None, n_packets=20000, seed=0, **params) -> MCResult
         raise ValueError(f"depths_m must be finite depths > 0, not {depths_m!r}")
     if isinstance(n_packets, bool) or not isinstance(n_packets, int) or n_packets < 1:
         raise ValueError(f"n_packets must be an integer >= 1, not {n_packets!r}")
+    sectors = p["sectors"]
+    if isinstance(sectors, bool) or not isinstance(sectors, int) or sectors < 1:
+        raise ValueError(f"sectors must be an integer >= 1, not {sectors!r}")
     c, b, g = float(p["c_per_m"]), float(p["b_per_m"]), float(p["g"])
     if not (c > 0 and 0 <= b <= c and 0 <= g < 1):
         raise ValueError(f"need c_per_m > 0, 0 <= b_per_m <= c_per_m and 0 <= g < 1, not "
@@ -246,15 +272,16 @@ def bottom_returns(depths_m=None, n_packets=20000, seed=0, **params) -> MCResult
     recv = _trace(rng, n_packets, half_fov, depths, p, th_a, r_air)
     elapsed = time.perf_counter() - t0
     etendue = p["aperture_m2"] * 2 * math.pi * (1.0 - math.cos(half_fov))
-    cell = max(r_air * math.tan(half_fov) / 8.0, 0.01)  # resolves the field-of-view edge
+    ring = max(r_air * math.tan(half_fov) / 8.0, 0.01)  # resolves the field-of-view edge
     bin_s = float(p["bin_s"])
     lead = 10e-9
     t_geo1 = n * depths / (C0 * math.cos(th_w))  # one-way unscattered time per depth [s]
     n_leg = math.ceil((lead / 2 + p["window_s"]) / bin_s)
     time_s = -lead + (np.arange(2 * n_leg) + 0.5) * bin_s
-    impulse = np.stack([_combine(laser, recv, k, cell, t_geo1[k] - lead / 2, bin_s, n_leg)
-                        for k in range(depths.size)])
-    impulse *= p["bottom_albedo"] / math.pi * etendue / (n_packets ** 2 * cell ** 2 * bin_s)
+    centre = depths * math.tan(th_w)  # the beam axis meets the surface at x = 0
+    impulse = np.stack([_combine(laser, recv, k, centre[k], ring, sectors, t_geo1[k] - lead / 2,
+                                 bin_s, n_leg) for k in range(depths.size)])
+    impulse *= p["bottom_albedo"] / math.pi * etendue / (n_packets ** 2 * bin_s)
     sigma = p["pulse_fwhm_s"] / math.sqrt(8 * math.log(2))
     waveforms = _gauss_conv(impulse, sigma, bin_s)
     peak, width = _peak_and_width(time_s, waveforms)

@@ -138,3 +138,34 @@ class TestFidelity:
         misfit_m = law.peak_misfit_s * 299_792_458.0 / 2 / 1.33
         assert deep.fidelity == ("stretched" if misfit_m < s1.fidelity_tolerance_m
                                  else "montecarlo")
+
+
+class TestMonteCarloKernel:
+    def test_deep_returns_peak_later_with_depth(self, s0):
+        # Stretching only grows with depth, so the noise-free bottom return (Monte Carlo
+        # fidelity, through the receiver) must peak later the deeper the bottom; Monte Carlo
+        # noise may move it back by no more than the scene's fidelity tolerance (2 cm of depth,
+        # 0.18 ns). With square bottom cells (a few hundred packet pairs per node beyond 20 m)
+        # it fell back by 2.3 ns from 24.75 to 25 m here and rose 3.2 ns over 18-26 m in all;
+        # with polar cells and 50 000 packets every 0.25 m step is +0.12 ns or more (7 ns).
+        sc = dataclasses.replace(s0, sampling_phase_jitter=False, max_depth_m=26.0)
+        d = np.arange(18.0, 26.01, 0.25)
+        r = simulate(sc, d.size, 0, fidelity="montecarlo", depth_m=d, noise=False)
+        ib = (r.bottom_time_s / r.dt_s).astype(int)
+        rows = np.arange(d.size)[:, None]
+        seg = r.volts[rows, ib[:, None] + np.arange(80)]  # the bottom and 40 ns after it
+        j = np.argmax(seg, axis=1)
+        a, b, c = (seg[np.arange(d.size), j + k] for k in (-1, 0, 1))
+        lag_s = (ib + j + 0.5 * (a - c) / (a - 2 * b + c)) * r.dt_s - r.bottom_time_s
+        tol_s = 2 * sc.fidelity_tolerance_m * sc.n_water / C0 / math.cos(math.asin(
+            math.sin(math.radians(sc.incidence_deg)) / sc.n_water))
+        assert np.all(j > 0) and np.all(j < 79)
+        assert np.diff(lag_s).min() > -tol_s
+        # and it does stretch: about 1 ns per metre here, not a noise-flat lag
+        assert 4e-9 < lag_s[-1] - lag_s[0] < 16e-9
+
+    def test_bad_sectors(self):
+        from sim.montecarlo import bottom_returns
+
+        with pytest.raises(ValueError, match="sectors must be an integer >= 1, not 0"):
+            bottom_returns([5.0], 10, 0, sectors=0)
