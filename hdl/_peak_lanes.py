@@ -366,19 +366,37 @@ def elaborate(top, platform):
         # last, between the two picks: it fans out to thr_tag's enables too, and as the
         # select of each pick's four candidates it sat five LUTs from tag_eq (the pipeline's
         # worst path in one seed of three, 6.72 ns, 4.8 of it routing).
+        # Tags count frames modulo 2^TAG_WIDTH, and frames too short for a threshold never
+        # load thr_tag: after 2^TAG_WIDTH - 1 of them, a frame had the tag of the one whose
+        # threshold was still held, and its first candidate samples were tested against that
+        # stale threshold instead of waiting for their own (tests/test_hdl_peak_detect.py,
+        # test_verilator_tag_wraps_past_a_stale_threshold). The statistics come from the beats
+        # leaving D1, so a threshold is for D1's frame or an older one, and once a frame's
+        # first beat enters D1 the held one can never be its frame's: thr_tag is cleared
+        # then (to its reset value, which matches no tag), unless a new one loads at that
+        # edge. A new threshold is for a frame at most a few frames before D1's (the
+        # statistics' latency is far below 2^TAG_WIDTH clocks), so its tag compares exactly.
         new, new_tag = stats.bound_new, stats.bound_tag
+        first_in = free & Mux(s_valid, skid.beat.first, top.i.valid & d.first)
         with m.If(new):
             m.d.sync += thr_tag.eq(new_tag)
+        with m.Elif(first_in):
+            m.d.sync += thr_tag.eq(thr_tag.init)
 
         # While D1 keeps its beat and thr_tag stays, tag_eq stays: thr_tag == d1_tag is
         # tag_eq itself, not a 9-bit compare (from D1's tag, through the compare's three
-        # LUTs, it was the pipeline's worst path in a seed, 6.61 ns).
-        def pick(ref, held):  # ref == the tag D1 holds next; `held`: ref == d1_tag
-            return Mux(free, Mux(s_valid, ref == skid.tag,
-                                 Mux(d.first, ref == tag_p1, ref == tag)),
-                       held)
-        m.d.sync += tag_eq.eq(Mux(new, pick(new_tag, new_tag == d1_tag),
-                                  pick(thr_tag, tag_eq)))
+        # LUTs, it was the pipeline's worst path in a seed, 6.61 ns). A frame's first beat
+        # entering D1 meets the cleared thr_tag: no compare either.
+        def pick_new():  # new_tag == the tag D1 holds next
+            return Mux(free, Mux(s_valid, new_tag == skid.tag,
+                                 Mux(d.first, new_tag == tag_p1, new_tag == tag)),
+                       new_tag == d1_tag)
+
+        def pick_held():  # thr_tag == the tag D1 holds next, thr_tag staying or cleared
+            return Mux(free, Mux(s_valid, ~skid.beat.first & (thr_tag == skid.tag),
+                                 ~d.first & (thr_tag == tag)),
+                       tag_eq)
+        m.d.sync += tag_eq.eq(Mux(new, pick_new(), pick_held()))
     # ---- the decision, D2 to C (hdl._peak_decide), as the beat leaves D1 ----
     s_fin, b_fin, end_valid, end_long = decide(
         m, top, levels=depth, go=go, d1=d1, d1_base=d1_base, d1_needs=d1_needs, d1_tag=d1_tag,

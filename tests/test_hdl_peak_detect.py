@@ -394,3 +394,36 @@ class TestLookaheadArgument:
             assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == want, d
         assert detector(lanes=10, lookahead=28).threshold_bubble == 0
         assert detector(lanes=10, lookahead=27).threshold_bubble == 1
+
+
+def wrapped_tag_frames() -> Frames:
+    """A frame that sets the threshold, then 2^TAG_WIDTH - 1 frames too short for one, then a
+    frame whose tag is the first's again (tags count modulo 2^TAG_WIDTH) and whose own
+    threshold differs: its peaks stand above its own threshold and below the first frame's."""
+    from hdl.matched_filter import TAG_WIDTH
+
+    L, cfg = 8, Config(noise_log2=2, k_thr_q4=128, min_thr=1, min_sep=1, bottom_rule=1)
+    rng = np.random.default_rng(5)
+    n = 200
+    loud = np.clip(np.cumsum(rng.integers(-30000, 30001, n)), Y_LO, Y_HI).astype(np.int32)
+    quiet = rng.integers(-20, 21, n).astype(np.int32)
+    # far above 8 x its noise, far below the loud frame's; the first at the first candidate
+    # sample (W + 2P), which is decided before the frame's own statistics can be ready
+    quiet[[L - 1 + (2 << cfg.noise_log2), 120]] = [6000, 4000]
+    short = [np.zeros(1, np.int32)] * ((1 << TAG_WIDTH) - 1)
+    ys = [loud, *short, quiet]
+    return Frames(L, cfg, ys, [np.zeros(len(y), np.int64) for y in ys])
+
+
+@pytest.mark.parametrize("params", [{}, {"lookahead": 20}], ids=["plain", "lookahead"])
+def test_verilator_tag_wraps_past_a_stale_threshold(tmp_path, params):
+    """The threshold registers hold the last frame long enough to have one; a frame whose tag
+    equals that frame's modulo 2^TAG_WIDTH (after 2^TAG_WIDTH - 1 short frames) must wait for
+    its own statistics, not take the old ones (it did not without the lookahead: its first
+    peak, at the first candidate sample, was missed). Two lanes:
+    ``test_hdl_peak_detect_lanes.py``."""
+    fr = wrapped_tag_frames()
+    _, results = run_checked(tmp_path, fr, "plain", "peak_detect-tag_wrap", **params)
+    assert results[-1].threshold < results[0].threshold
+    first_candidate = fr.L - 1 + (2 << fr.cfg.noise_log2)
+    assert results[-1].surface.found and results[-1].surface.n == first_candidate

@@ -305,3 +305,20 @@ def test_verilator_lookahead_short_frames(tmp_path, traffic_name):
     check_surfaces(res.sinks["surface"], results)
     check_surface_bound(res, fr.ys, results, detector(LA_LANES, LA_SHORT))
     assert sum(bool(r.surface.found) for r in results) > 100
+
+
+def test_verilator_tag_wraps_past_a_stale_threshold(tmp_path):
+    """Two lanes: after 2^TAG_WIDTH - 1 frames too short for a threshold, a frame with the
+    tag of the last one that had one waits for its own statistics (the one-lane test's
+    frames, ``test_hdl_peak_detect.wrapped_tag_frames``)."""
+    from test_hdl_peak_detect import wrapped_tag_frames
+
+    fr = wrapped_tag_frames()
+    st = SimpleNamespace(ys=fr.ys, ks=fr.ks, group=[fr] * len(fr.ys), changes=[])
+    res = run_stream(tmp_path, st, 2, 0, "plain")
+    assert not res.timeout and res.violations == {"o": 0, "surface": 0}
+    results = fr.results()
+    check_results(res.sinks["o"], results)
+    check_surfaces(res.sinks["surface"], results)
+    first_candidate = fr.L - 1 + (2 << fr.cfg.noise_log2)
+    assert results[-1].surface.found and results[-1].surface.n == first_candidate
