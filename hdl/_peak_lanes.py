@@ -390,7 +390,7 @@ def elaborate(top, platform):
         # While D1 keeps its beat and thr_tag stays, tag_eq stays: thr_tag == d1_tag is
         # tag_eq itself, not a 9-bit compare (from D1's tag, through the compare's three
         # LUTs, it was the pipeline's worst path in a seed, 6.61 ns). A frame's first beat
-        # entering D1 meets the cleared thr_tag: no compare either.
+        # entering D1 gets no match (its frame's threshold cannot be held yet): no compare.
         def pick_new():  # new_tag == the tag D1 holds next
             return Mux(free, Mux(s_valid, new_tag == skid.tag,
                                  Mux(d.first, new_tag == tag_p1, new_tag == tag)),
