@@ -20,10 +20,13 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from amaranth.hdl import Elaboratable, Signal
@@ -154,8 +157,29 @@ class PortShell(Elaboratable):
         return m
 
 
+@contextmanager
+def _sigterm_raises():
+    """While a tool runs, SIGTERM raises ``SystemExit`` (in the main thread) instead of ending
+    Python at once: ``subprocess.run`` then kills the tool before Python exits. By default a
+    run stopped with ``kill`` left its nextpnr running for an hour, orphaned, on a core
+    another job needed (fourteenth session)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        raise SystemExit(128 + signum)
+
+    old = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def _run(cmd: list[str], cwd: Path, what: str) -> str:
-    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, check=False)
+    with _sigterm_raises():
+        proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-15:])
         raise RuntimeError(f"{what} failed (exit {proc.returncode}):\n{tail}")

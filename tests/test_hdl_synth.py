@@ -122,3 +122,27 @@ def test_record_figures_merges_per_configuration(tmp_path):
     with pytest.raises(ValueError, match="holds figures for"):
         record_figures(path, {"device": {**dev, "part": "LFE5U-25F"}, "components": {}})
 
+
+
+def test_a_stopped_run_stops_its_tool(tmp_path):
+    """SIGTERM to a process running a tool through ``hdl.synth._run`` (nextpnr for an hour,
+    say) kills the tool before the process exits, rather than leaving it orphaned."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    child_pid = tmp_path / "child.pid"
+    tool = f"import os, time; open({str(child_pid)!r}, 'w').write(str(os.getpid())); time.sleep(60)"
+    runner = ("import sys; from pathlib import Path; from hdl.synth import _run; "
+              f"_run([sys.executable, '-c', {tool!r}], Path({str(tmp_path)!r}), 'tool')")
+    parent = subprocess.Popen([sys.executable, "-c", runner], cwd=os.getcwd())
+    deadline = time.monotonic() + 30
+    while not (child_pid.exists() and child_pid.read_text()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    pid = int(child_pid.read_text())
+    parent.send_signal(signal.SIGTERM)
+    assert parent.wait(timeout=30) == 128 + signal.SIGTERM
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
