@@ -31,7 +31,7 @@ from amaranth.hdl import Array, Cat, Const, Mux, Signal, unsigned
 from amaranth.lib import data
 
 from ._peak_common import _POS, thr_as_key
-from ._primitives import _delay, _delay_to, _ram_delay, _reg, _sub_sign
+from ._primitives import _delay, _delay_to, _reg, _sub_sign
 from .matched_filter import TAG_WIDTH
 from .peak_detect import _KEY, _Y, record_layout
 
@@ -97,14 +97,14 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     # The beat travels with its valid bit to C, 4 depth + 8 clocks after D2; it is read at
     # D3 (bd1: everything), R (bt_r, 2 depth + 2 clocks on: the samples), B2 (bt_b, 4 depth
     # + 6 clocks on: samples, templates, base, first) and C (bt_c: last, long). The long
-    # stretches are LUT RAMs (hdl._primitives._ram_delay): as registers the stretch to B2
+    # stretches are LUT RAMs (hdl._primitives._delay_to): as registers the stretch to B2
     # was 6 of the one-lane detector's 8 x 101 delay flip-flops, a fifth of all of them,
     # and at ten lanes the two were 22 stages of 370 bits and 10 of 264. The valid bits stay
     # registers: they gate every use of a word.
     vd = _delay(m, d2_valid, 4 * depth + 8, "valid")
     bd1 = _reg(m, d2, d2.shape(), "beat_1")
     bt_r = _delay_to(m, bd1.e, 2 * depth + 2, "beat_r")
-    bt_b = _ram_delay(m, bd1, 4 * depth + 6, "beat_b")
+    bt_b = _delay_to(m, bd1, 4 * depth + 6, "beat_b")
     bt_c = _reg(m, Cat(bt_b.last, bt_b.long), 2, "beat_c")
     s_fin = _surface_record(m, L, rec, bd1, vd, d3_new, sep_at, s_found, ms_lane)
     pm, seg = _prefix_minimum(m, L, depth, bd1, d3_new)

@@ -89,8 +89,9 @@ def _ram_delay(m, value, n, name):
     register. Each clock writes ``value`` at one pointer and reads, asynchronously, the word
     written ``n - 1`` clocks before at another (both counters, so that the read address
     comes from a register, not an adder), into the output register. The memory's words start
-    undefined (zero in simulation), so the delayed value is meaningful only where the value
-    ``n`` clocks before was written: a caller gates it with a valid delayed in registers.
+    at zero, as registers do, but a reset leaves them as they are, so the delayed value is
+    meaningful only where the value ``n`` clocks before was written: a caller gates it with a
+    valid delayed in registers.
     Returns the output register, ``name``.
     """
     shape = value.shape()
@@ -415,13 +416,14 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None):
         head_t = Mux(held_is0 | (pop_t & held_is1), pipe, Mux(pop_t, rp.data, head))
         return held_t, head_t
     (held_tk, head_tk), (held_no, head_no) = after(True), after(False)
+    held_nx = Mux(take, held_tk, held_no)
     m.d.sync += [
         head.eq(Mux(take, head_tk, head_no)),
         w_ptr.eq(Mux(push, w_up, w_ptr)),
         r_next.eq(Mux(pop, r_up, r_next)),
         held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
-        any_held.eq(Mux(take, held_tk, held_no)),
-        show_pipe.eq(~Mux(take, held_tk, held_no)),
+        any_held.eq(held_nx),
+        show_pipe.eq(~held_nx),
     ]
     # The fields shown ahead: what the head-or-pipe mux shows next, the take choosing as for
     # the head (through the take into the pop, the head's and the count's next values and

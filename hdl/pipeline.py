@@ -56,6 +56,13 @@ _FILTER_SLICE = data.StructLayout({"beat": matched_filter.FILTER_IN, "codes": CO
 _INSIDE_BITS = 8  # frames inside the filter/detector: a handful at most
 
 
+def _fifo_ports(width: int) -> dict:
+    """The ports of an ``amaranth.lib.fifo`` FIFO (``w_rdy`` high after reset), for the FIFOs
+    written here."""
+    return {"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
+            "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)}
+
+
 class _SideFIFO(wiring.Component):
     """A ``SyncFIFO`` whose ``w_rdy`` and ``r_rdy`` are registers, not compares of its level.
 
@@ -71,8 +78,7 @@ class _SideFIFO(wiring.Component):
         if depth < 2:
             raise ValueError(f"side FIFO depth must be at least 2, not {depth!r}")
         self.depth = depth
-        super().__init__({"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
-                          "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)})
+        super().__init__(_fifo_ports(width))
 
     def elaborate(self, platform):
         m = Module()
@@ -125,8 +131,7 @@ class RegisterSlice(wiring.Component):
         if not (isinstance(width, int) and width >= 1):
             raise ValueError(f"width must be an integer >= 1, not {width!r}")
         self.width = width
-        super().__init__({"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
-                          "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)})
+        super().__init__(_fifo_ports(width))
 
     def elaborate(self, platform):
         m = Module()
