@@ -316,11 +316,14 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
     electrical response). Template ``k >= 1`` is the bottom return expected at the centre of
-    depth bin ``k - 1``: the Monte Carlo photon-transport return of the scene's water at the
-    bin's centre depth (``sim.montecarlo``; seed 001 section 2.3), through the same electrical
-    response. Bins divide ``first_bin_m .. scene.max_depth_m`` equally. Each template's
-    reference offset is the index of the unscattered echo time, so depths need no further
-    peak-offset correction (seed 001's per-depth correction).
+    depth bin ``k - 1`` through the same electrical response, at the fidelity level the
+    simulator takes for the scene (``sim.waveform.resolve_fidelity``): the Monte Carlo
+    photon-transport return of the scene's water at the bin's centre depth
+    (``sim.montecarlo``, a run of the bank's own; seed 001 section 2.3) for ``montecarlo``,
+    the fitted stretching law for ``stretched``, and the pulse (spread by a sloping bottom
+    only) for ``analytic``. Bins divide ``first_bin_m .. scene.max_depth_m`` equally. Each
+    template's reference offset is the index of the unscattered echo time, so depths need no
+    further peak-offset correction (seed 001's per-depth correction).
 
     Parameters
     ----------
@@ -334,7 +337,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     x_range : (int, int)
         Range of the stitched input, for the output shift (default: the linear rule's).
     mc_packets, mc_seed : int
-        Photon packets per leg and seed of the Monte Carlo run.
+        Photon packets per leg and seed of the Monte Carlo run (``montecarlo`` scenes only).
     adc_noise_lsb : float, optional
         Noise of the stitched input that is always there, LSB rms, for ``min_thr``. Default:
         the scene's own floor in the high-gain channel, its ADC noise, its TIA noise and the
@@ -346,6 +349,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         shallower than that (``first_bin_m`` is raised to it when it is shallower).
     """
     from sim.optics import refracted_angle
+    from sim.stretching import law_for_scene
+    from sim.waveform import bottom_kernel, resolve_fidelity
 
     if not 1 <= n_templates <= K_MAX:
         raise ValueError(f"n_templates must be in 1..{K_MAX}, not {n_templates!r}")
@@ -369,15 +374,30 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     c0 = (n_taps - 1) / 2
     templates[0] = np.exp(-0.5 * ((j - c0) * dt / sigma) ** 2)
     ref[0] = c0
+    fidelity = resolve_fidelity(scene)
     if n_bins:
-        # Seed 001: the templates are the Monte Carlo bottom returns themselves, here seen
-        # through the receiver's electrical response as the digitizer sees them.
+        # Seed 001: the templates are the bottom returns themselves, here seen through the
+        # receiver's electrical response as the digitizer sees them.
         from scipy.ndimage import gaussian_filter1d
 
         from sim.montecarlo import bottom_returns
         from sim.stretching import mc_params
 
-        def returns(at_m):
+        def returns_sim(at_m):
+            # The scene's own bottom model where it is closed-form (analytic: the pulse, spread
+            # only by a sloping bottom; stretched: the fitted law): a bank made from Monte
+            # Carlo returns for water the scene says does not stretch is a mismatched filter
+            # (on seed 000's unstretched bottom it doubled the adaptive filter's RMSE).
+            # the grid: 8 sigmas either side, and 20 decay times of the stretched tail
+            tail = 0.0 if law is None else (20 * float(np.max(law.tau_s(at_m)))
+                                            + max(0.0, float(np.max(law.shift_s(at_m)))))
+            step = dt / 16
+            t = np.arange(-8 * sigma, 8 * sigma + tail, step)
+            _, kern = bottom_kernel(scene, at_m, t, fidelity)
+            waves = gaussian_filter1d(kern, sigma_e / step, axis=-1, mode="constant")
+            return t, step, waves, (waves @ t) / waves.sum(axis=-1)
+
+        def returns_mc(at_m):
             mc = bottom_returns(at_m, mc_packets, mc_seed, **mc_params(scene))
             step = mc.time_s[1] - mc.time_s[0]
             waves = gaussian_filter1d(mc.waveforms, sigma_e / step, axis=-1, mode="constant")
@@ -395,6 +415,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
             waves, sums = waves[last], sums[last]
             return mc.time_s, step, waves, (waves @ mc.time_s) / sums
 
+        law = law_for_scene(scene, scene.max_depth_m) if fidelity == "stretched" else None
+        returns = returns_mc if fidelity == "montecarlo" else returns_sim
         # The template in use is chosen by the filter output's position, where a return shows
         # its centroid, not its hit time: a bin's template is the return whose centroid falls
         # in the middle of the bin, i.e. made for a depth shallower by the centroid's delay.

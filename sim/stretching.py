@@ -26,7 +26,7 @@ from scipy.special import erfc, erfcx
 
 from sim.montecarlo import bottom_returns
 
-__all__ = ["StretchLaw", "emg", "fit_law", "law_for_scene"]
+__all__ = ["NoReturnError", "StretchLaw", "emg", "fit_law", "law_for_scene"]
 
 
 def emg(t, sigma, tau):
@@ -42,6 +42,10 @@ def emg(t, sigma, tau):
         pos = np.exp(-0.5 * (t / sigma) ** 2) * erfcx(np.maximum(x, 0.0))
         neg = np.exp(np.minimum(0.5 * (sigma / tau) ** 2 - t / tau, 700.0)) * erfc(np.minimum(x, 0))
     return np.where(x >= 0, pos, neg) / (2.0 * tau)
+
+
+class NoReturnError(ValueError):
+    """The water returns too little from its bottom to fit a stretching law to."""
 
 
 @dataclass(frozen=True)
@@ -115,7 +119,9 @@ def fit_law(mc) -> StretchLaw:
         shifts.append(shift)
         errs.append(np.sqrt(np.mean((emg(mc.time_s - shift, sigma, tau) - yn) ** 2)) / yn.max())
     if len(depths) < 2:
-        raise ValueError("Monte Carlo result has fewer than two usable depths to fit")
+        raise NoReturnError(f"the Monte Carlo result has {len(depths)} depth(s) with a bottom "
+                            f"return, fewer than the two a law needs (depths "
+                            f"{np.round(mc.depths_m, 2).tolist()} m)")
     d = np.array(depths)
     t1 = float(d @ np.array(taus) / (d @ d))  # least squares through the origin
     s1 = float(d @ np.array(shifts) / (d @ d))

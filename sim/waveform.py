@@ -31,9 +31,10 @@ from scipy.ndimage import gaussian_filter1d
 
 from sim import optics
 from sim.scene import FIDELITIES, Scene
-from sim.stretching import emg, law_for_scene, mc_params
+from sim.stretching import NoReturnError, emg, law_for_scene, mc_params
 
-__all__ = ["SimResult", "bottom_energy_j", "simulate", "surface_energy_j", "water_iops"]
+__all__ = ["SimResult", "bottom_energy_j", "bottom_kernel", "resolve_fidelity", "simulate",
+           "surface_energy_j", "water_iops"]
 
 C0 = 299_792_458.0
 H_PLANCK = 6.62607015e-34
@@ -119,6 +120,13 @@ def bottom_energy_j(scene: Scene, depth_m=None):
     return float(e) if e.ndim == 0 else e
 
 
+def resolve_fidelity(scene, fidelity: str = "auto", d_max: float | None = None) -> str:
+    """The bottom-return model :func:`simulate` uses for ``scene`` when its deepest bottom is
+    ``d_max`` [m] (default ``scene.max_depth_m``; ``nan``: no bottom): ``fidelity`` itself
+    unless it is ``"auto"`` (see :func:`simulate`)."""
+    return _resolve_fidelity(scene, fidelity, scene.max_depth_m if d_max is None else d_max)
+
+
 def _resolve_fidelity(scene, fidelity, d_max):
     if fidelity not in FIDELITIES:
         raise ValueError(f"fidelity must be one of {list(FIDELITIES)}, not {fidelity!r}")
@@ -129,13 +137,26 @@ def _resolve_fidelity(scene, fidelity, d_max):
     # The cheapest level whose bottom peak (what depth statistics follow) stays within the
     # tolerance of the next richer one: analytic if stretching moves the peak less than that,
     # stretched if the fitted law reproduces the Monte Carlo peaks that well, else Monte Carlo.
-    law = law_for_scene(scene, d_max)
+    try:
+        law = law_for_scene(scene, d_max)
+    except NoReturnError:
+        # Water so turbid that no packet comes back from its bottom: no shape to fit a law
+        # to, and no cheaper level is known to agree; the Monte Carlo renders what returns.
+        return "montecarlo"
     sigma = scene.pulse_fwhm_s / math.sqrt(8 * math.log(2))
     th_w = optics.refracted_angle(scene.incidence_deg, scene.n_water)
     to_m = C0 / (2 * scene.n_water) * math.cos(th_w)
     if abs(law.peak_offset_s(d_max, sigma)) * to_m < scene.fidelity_tolerance_m:
         return "analytic"
     return "stretched" if law.peak_misfit_s * to_m < scene.fidelity_tolerance_m else "montecarlo"
+
+
+def _scene_law(scene, d_max):
+    """The stretching law the ``stretched`` level renders with: fitted over the scene's depths
+    (to ``max_depth_m``, or deeper for a deeper batch), so that a shot is rendered alike
+    whatever other depths share its batch (fitted to each batch's deepest, a 10 m bottom
+    moved with the batch)."""
+    return law_for_scene(scene, max(float(scene.max_depth_m), d_max))
 
 
 #: Spacing of the Monte Carlo bottom-return nodes [m]; shapes between nodes are blended.
@@ -225,7 +246,7 @@ def simulate(scene: Scene, n_waveforms: int, seed: int, fidelity: str = "auto",
     t_s = t_fire_surface - gate_delay * dt + phase
     rw = np.where(has_b, d, 0.0) / math.cos(th_w)
     t_b = np.where(has_b, t_s + 2 * rw / v_w, np.nan)
-    law = law_for_scene(scene, d_max) if fid == "stretched" else None
+    law = _scene_law(scene, d_max) if fid == "stretched" else None
     tail = 0.0
     if law is not None:
         tail = 4 * float(law.tau_s(d_max)) + max(float(law.shift_s(d_max)), 0.0)
@@ -287,6 +308,40 @@ def simulate(scene: Scene, n_waveforms: int, seed: int, fidelity: str = "auto",
         volts[sl] = scene.transimpedance_ohm * filtered[:, ::os_]
     return SimResult(volts, dt, gate_delay, t_s, t_b, np.where(has_b, d, np.nan),
                      scene.incidence_deg, n, fid, scene)
+
+
+def bottom_kernel(scene: Scene, depth_m, t_s, fidelity: str = "auto"):
+    """The bottom kernel ``k_D`` of the lidar equation as :func:`simulate` renders it.
+
+    Parameters
+    ----------
+    scene : Scene
+    depth_m : array_like (n,)
+        Vertical depths [m], finite.
+    t_s : array_like (T,)
+        Times after the unscattered bottom echo [s].
+    fidelity : {"auto", "analytic", "stretched", "montecarlo"}
+        As :func:`simulate`; ``auto`` is resolved for the deepest of ``depth_m``.
+
+    Returns
+    -------
+    fidelity : str
+        The level used.
+    kernel : ndarray (n, T)
+        Unit-area return shapes [1/s], before the receiver's electrical response.
+    """
+    d = np.atleast_1d(np.asarray(depth_m, dtype=np.float64))
+    if d.ndim != 1 or not np.all(np.isfinite(d)) or np.any(d < 0):
+        raise ValueError(f"depth_m must be finite depths >= 0 of shape (n,), not {depth_m!r}")
+    t = np.asarray(t_s, dtype=np.float64)
+    d_max = float(d.max())
+    fid = _resolve_fidelity(scene, fidelity, d_max)
+    sigma = scene.pulse_fwhm_s / math.sqrt(8 * math.log(2))
+    law = _scene_law(scene, d_max) if fid == "stretched" else None
+    mc = _mc_kernels(scene, d, sigma) if fid == "montecarlo" else None
+    rw = d / math.cos(optics.refracted_angle(scene.incidence_deg, scene.n_water))
+    ub = np.broadcast_to(t, (d.size, t.size))
+    return fid, _bottom_kernel(fid, ub, d, sigma, law, mc, scene, rw)
 
 
 def _bottom_kernel(fid, ub, d, sigma, law, mc, scene, rw):

@@ -176,6 +176,39 @@ class TestSceneBank:
         # the same Gaussian, sampled on the Monte Carlo time grid and put back on the taps
         assert np.abs(c[1:] - c[0]).max() <= 0.01 * c[0].max()
 
+    def test_water_the_scene_says_does_not_stretch_gets_the_pulse_everywhere(self):
+        import dataclasses
+
+        from sim.scene import preset
+        from sim.waveform import resolve_fidelity
+
+        # a tolerance no stretching reaches: the simulator renders the bottom as the pulse
+        flat = dataclasses.replace(preset("seed000"), fidelity_tolerance_m=10.0)
+        assert resolve_fidelity(flat) == "analytic"
+        sb = coeffs.scene_bank(flat, n_templates=4, n_taps=48)
+        c = sb.bank.coefs.astype(np.int64)
+        assert np.abs(c[1:] - c[0]).max() <= 1
+        np.testing.assert_allclose(sb.bank.ref_offsets, 23.5)
+        np.testing.assert_allclose(sb.coverage, 1.0, atol=1e-6)
+
+    def test_a_stretched_scene_gets_its_laws_returns(self):
+        import dataclasses
+
+        from sim.scene import preset
+        from sim.stretching import law_for_scene
+        from sim.waveform import resolve_fidelity
+
+        sc = dataclasses.replace(preset("seed000"), fidelity_tolerance_m=2.0)
+        assert resolve_fidelity(sc) == "stretched"
+        sb = coeffs.scene_bank(sc, n_templates=4, n_taps=48)
+        law = law_for_scene(sc, sc.max_depth_m)
+        d = sb.bin_depths_m[1:]
+        # the centroid of an exponentially modified Gaussian lies shift + tau after the hit,
+        # and the template puts it in the window's middle
+        want = 23.5 - (law.shift_s(d) + law.tau_s(d)) / sc.dt_s
+        np.testing.assert_allclose(sb.bank.ref_offsets[1:], want, atol=0.02)
+        assert np.all(np.diff(sb.bank.ref_offsets) < 0)
+
     def test_out_shift_cannot_saturate(self, made):
         assert made.out_shift == coeffs.out_shift_for(made.bank, -800, 24700)
 

@@ -117,6 +117,17 @@ class TestFrontEnd:
 
 
 class TestFidelity:
+    def test_water_that_returns_nothing_is_simulated_not_refused(self):
+        # 300 mg/L of sediment: no Monte Carlo packet comes back from any depth, so there is no
+        # stretching law to fit (simulate raised ValueError from the fit before)
+        mud = dataclasses.replace(preset("seed000"), sediment_mg_l=300.0)
+        r = simulate(mud, 3, 0)
+        assert r.fidelity == "montecarlo" and np.all(np.isfinite(r.volts))
+        from sim.stretching import NoReturnError, law_for_scene
+
+        with pytest.raises(NoReturnError, match="fewer than the two a law needs"):
+            law_for_scene(mud)
+
     def test_stretched_moves_and_widens_bottom(self):
         s1 = dataclasses.replace(preset("seed001"), depth_m=30.0, sampling_phase_jitter=False)
         a = simulate(s1, 1, 0, fidelity="analytic", noise=False)
