@@ -29,10 +29,12 @@ from model.registers import by_name
 __all__ = [
     "BANK_FORMAT",
     "CONFIDENT_K_THR_Q4",
+    "MIN_THR_SIGMAS",
     "SURVEY_K_THR_Q4",
     "SURVEY_NOISE_LOG2",
     "SceneBank",
     "bank_from_templates",
+    "filtered_floor_rms",
     "gaussian_pulse",
     "load_bank_json",
     "noise_floor_lsb",
@@ -92,9 +94,56 @@ _C_LO, _C_HI = int_range(COEF_WIDTH, signed=True)
 
 def noise_floor_lsb(scene) -> float:
     """Noise always present on the high-gain channel, LSB rms (ADC, TIA, quantization)."""
+    white, tia = _floor_parts_lsb(scene)
+    return math.hypot(white, tia)
+
+
+def _floor_parts_lsb(scene) -> tuple[float, float]:
+    """The floor's white part (ADC noise and quantization, per sample) and its amplifier part
+    (the TIA's, through the receiver's Gaussian electrical response), LSB rms each."""
     lsb_v = scene.full_scale_v / 256 / scene.gains[2]
-    return math.sqrt(scene.channel_noise_lsb[2] ** 2 + (scene.electronics_noise_v / lsb_v) ** 2
-                     + 1 / 12)
+    return (math.sqrt(scene.channel_noise_lsb[2] ** 2 + 1 / 12),
+            scene.electronics_noise_v / lsb_v)
+
+
+#: ``min_thr`` in deviations of the noise floor through template 0 (:func:`filtered_floor_rms`).
+#: Measured on the Monte Carlo study scene with ``adaptive_mf`` (5000 shots at each of 10, 16,
+#: 20 m and without a bottom, ``k_thr_q4 = 128``): at 4.25 deviations (158 LSB, 5 % of the
+#: frames at the floor) one frame in 20 000 took a noise bump before the surface for it (a
+#: weak answer); every floor from 4.5 deviations took none, but the bottom at 24 m was found in
+#: 16.9 % of 1000 shots at 4.25, 16.3 % at 4.5, 15.1 % at 4.75, 12.9 % at 5 and 2.7 % at 6 (at
+#: ``k_thr_q4 = 104``: 41.5, 39.4, 36.1, 30.4, 5.3 %; the unstretched bottom at 30 m with the
+#: fixed filter: 54.9, 53.1, 51.5, 47.6, 27.5 %). ``docs/methods.md``, "The threshold floor".
+MIN_THR_SIGMAS = 4.25
+
+
+def filtered_floor_rms(scene, taps, out_shift: int, adc_noise_lsb: float | None = None) -> float:
+    """Standard deviation of the filter output that the noise floor alone gives, filter LSB.
+
+    The white part (ADC, quantization) passes as ``||taps||``; the amplifier's part is
+    already band-limited by the receiver's Gaussian electrical response (standard deviation
+    ``s`` samples), so its autocorrelation is a Gaussian of ``sqrt(2) s`` and it passes as
+    ``sqrt(taps R taps)``: 37.0 LSB for the survey's template 0 where the white sum gave 26.3.
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+    taps : array_like int (L,)
+        One template's coefficients.
+    out_shift : int
+        The filter's output shift.
+    adc_noise_lsb : float, optional
+        A floor given as one white rms instead, LSB (default: the scene's, split as above).
+    """
+    c = np.asarray(taps, dtype=np.float64)
+    if adc_noise_lsb is not None:
+        return float(adc_noise_lsb * np.linalg.norm(c)) / 2 ** out_shift
+    white, tia = _floor_parts_lsb(scene)
+    s = math.sqrt(math.log(2)) / (2 * math.pi * scene.electrical_bandwidth_hz) / scene.dt_s
+    lags = np.arange(-(c.size - 1), c.size)
+    r = np.exp(-lags.astype(np.float64) ** 2 / (4 * s * s))
+    var = white ** 2 * float(c @ c) + tia ** 2 * float(np.correlate(c, c, "full") @ r)
+    return math.sqrt(var) / 2 ** out_shift
 
 
 def gaussian_pulse(fwhm_samples: float, n_taps: int, centre: float | None = None) -> np.ndarray:
@@ -288,9 +337,9 @@ class SceneBank:
     snr_loss_db : float64 ndarray, shape (K,)
         Matched-filter SNR lost to quantization, dB.
     min_thr : int
-        Register: a threshold floor of six standard deviations of the filtered ADC noise floor
-        (``adc_noise_lsb`` through template 0), so that a frame whose noise window happens to
-        look quiet cannot drop the threshold into the noise.
+        Register: a threshold floor of :data:`MIN_THR_SIGMAS` standard deviations of the noise
+        floor through template 0 (:func:`filtered_floor_rms`), so that a frame whose noise
+        window happens to look quiet cannot drop the threshold into the noise.
     coverage : float64 ndarray, shape (K,)
         Share of each expected return's area inside the ``L``-tap window (1 for template 0).
         Well below 1, the return's tail is cut off and its centroid can no longer be placed
@@ -339,9 +388,10 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     mc_packets, mc_seed : int
         Photon packets per leg and seed of the Monte Carlo run (``montecarlo`` scenes only).
     adc_noise_lsb : float, optional
-        Noise of the stitched input that is always there, LSB rms, for ``min_thr``. Default:
-        the scene's own floor in the high-gain channel, its ADC noise, its TIA noise and the
-        quantization (1/12 LSB^2) added in power; about 0.56 LSB for ``seed000``.
+        Noise of the stitched input that is always there, LSB rms, for ``min_thr``, taken as
+        white. Default: the scene's own floor in the high-gain channel, its ADC noise and the
+        quantization (1/12 LSB^2), white, and its TIA noise, band-limited by the receiver
+        (:func:`filtered_floor_rms`); about 0.56 LSB in all for ``seed000``.
     min_bin_offset : int
         Samples below the surface before which no template switch may come: a build with
         ``lanes`` samples per clock is exact only for ``bin_offset >= min_bin_offset``
@@ -439,9 +489,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
             coverage[k] = min(1.0, templates[k].sum() * dt / (waves[k - 1].sum() * step))
     bank = bank_from_templates(templates, ref, bank_id)
     shift = out_shift_for(bank, *x_range)
-    if adc_noise_lsb is None:
-        adc_noise_lsb = noise_floor_lsb(scene)
-    sigma_y = adc_noise_lsb * float(np.linalg.norm(bank.coefs[0].astype(np.float64))) / 2**shift
+    sigma_y = filtered_floor_rms(scene, bank.coefs[0], shift, adc_noise_lsb)
     return SceneBank(
         bank=bank,
         templates=templates,
@@ -451,7 +499,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         bin_len=max(1, round(width_m / m_per_sample)),
         out_shift=shift,
         snr_loss_db=quantization_snr_loss_db(templates, bank),
-        min_thr=int(np.ceil(6 * sigma_y)),
+        min_thr=int(np.ceil(MIN_THR_SIGMAS * sigma_y)),
         coverage=coverage,
     )
 

@@ -209,6 +209,31 @@ class TestSceneBank:
         np.testing.assert_allclose(sb.bank.ref_offsets[1:], want, atol=0.02)
         assert np.all(np.diff(sb.bank.ref_offsets) < 0)
 
+    def test_the_floor_is_measured_through_the_filter(self):
+        """``min_thr``'s deviation against the filter output of the simulator's own floor: the
+        lead-in of shots without sun or dark current, stitched and filtered by the model."""
+        import dataclasses
+
+        from model.chain import run_chain
+        from sim.scene import preset
+        from sim.shots import make_shots
+
+        scene = dataclasses.replace(coeffs.survey_scene(preset("seed000")), depth_m=5.0,
+                                    max_depth_m=5.0, solar_radiance_w_m2_sr_nm=0.0,
+                                    dark_current_a=0.0)
+        sb = coeffs.scene_bank(scene, n_templates=1, n_taps=64)
+        shots = make_shots(scene, 5.0, 300, seed=2024)
+        cfg = Config(**coeffs.survey_registers(sb), gate_len=shots.adc.shape[-1])
+        y = run_chain(shots.adc, sb.bank, cfg).filtered.astype(np.float64)
+        lead = int(shots.truth_surface_s.min() / scene.dt_s) - 8  # before the surface's echo
+        measured = y[:, 63:lead].std()
+        want = coeffs.filtered_floor_rms(scene, sb.bank.coefs[0], sb.out_shift)
+        assert abs(measured / want - 1) < 0.05
+        white = coeffs.filtered_floor_rms(scene, sb.bank.coefs[0], sb.out_shift,
+                                          coeffs.noise_floor_lsb(scene))
+        assert measured / white > 1.3  # the floor taken as white: 26 LSB against 37
+        assert sb.min_thr == int(np.ceil(coeffs.MIN_THR_SIGMAS * want))
+
     def test_out_shift_cannot_saturate(self, made):
         assert made.out_shift == coeffs.out_shift_for(made.bank, -800, 24700)
 
