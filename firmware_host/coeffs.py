@@ -336,6 +336,11 @@ class SceneBank:
         Register: the smallest shift that cannot saturate for the stitched range given.
     snr_loss_db : float64 ndarray, shape (K,)
         Matched-filter SNR lost to quantization, dB.
+    floor_noise : int
+        The noise reading (the detector's mean absolute deviation, filter LSB) of the noise
+        floor alone, ``sqrt(2 / pi)`` of :func:`filtered_floor_rms`, rounded down: a frame's
+        noise can only read lower by chance, so the host's confidence test counts no lower
+        (``model.depth.confident_peaks``).
     min_thr : int
         Register: a threshold floor of :data:`MIN_THR_SIGMAS` standard deviations of the noise
         floor through template 0 (:func:`filtered_floor_rms`), so that a frame whose noise
@@ -355,6 +360,7 @@ class SceneBank:
     snr_loss_db: np.ndarray
     min_thr: int
     coverage: np.ndarray
+    floor_noise: int
 
 
 def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
@@ -501,6 +507,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         snr_loss_db=quantization_snr_loss_db(templates, bank),
         min_thr=int(np.ceil(MIN_THR_SIGMAS * sigma_y)),
         coverage=coverage,
+        floor_noise=math.floor(math.sqrt(2 / math.pi) * sigma_y),
     )
 
 

@@ -59,7 +59,7 @@ def _cmd_coeffs(args) -> int:
     sb = scene_bank(scene, n_templates=args.templates, n_taps=args.taps)
     # The registers the bank was made and calibrated for; `albcap config --bank` applies them.
     regs = survey_registers(sb)
-    meta = {"confident_q4": CONFIDENT_K_THR_Q4}
+    meta = {"confident_q4": CONFIDENT_K_THR_Q4, "floor_noise": sb.floor_noise}
     if args.walk_shots:
         walk = calibrate_walk(scene, sb.bank, Config(**regs), shots=args.walk_shots)
         meta["walk_samples"] = walk.tolist()
@@ -178,7 +178,8 @@ def _cmd_depth(args) -> int:
         min_thr = int(meta.get("registers", {}).get("min_thr", 0))
         sure = dep.valid & confident_peaks(pk["amplitude"][:, 0], pk["amplitude"][:, 1],
                                            pk["noise"][:, 0], min_thr=min_thr,
-                                           confident_q4=int(conf_q4))
+                                           confident_q4=int(conf_q4),
+                                           noise_floor=int(meta.get("floor_noise", 0)))
     d = dep.depth_m[dep.valid]
     if args.csv:
         np.savetxt(args.csv, np.column_stack([np.arange(len(frames)), dep.valid, sure,

@@ -156,9 +156,10 @@ def depth_from_peaks(surface_found, surface_q8, surface_template, bottom_found, 
 
 
 def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
-                    confident_q4: int) -> np.ndarray:
+                    confident_q4: int, noise_floor: int = 0) -> np.ndarray:
     """Which depths are *confident*: both peaks stand ``confident_q4 / 16`` times the noise
-    above the baseline, ``amplitude > max(min_thr, (confident_q4 * noise) >> 4)``.
+    above the baseline, ``amplitude > max(min_thr, (confident_q4 * max(noise, noise_floor))
+    >> 4)``.
 
     The detector's own amplitude test (spec section 5) with a stricter factor, applied after
     the fact: a record's ``amplitude`` is ``y - mu`` and its ``noise`` the frame's. A survey
@@ -167,7 +168,10 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
     The amplitude counts from the lead-in baseline, so under the surface the water column's
     return lifts it (the detector's rise test for bottom rule 2 is not in the records); the
     factor is therefore set above the false bottoms measured on water without a bottom
-    (``firmware_host.coeffs.CONFIDENT_K_THR_Q4``).
+    (``firmware_host.coeffs.CONFIDENT_K_THR_Q4``). A frame's noise is measured on a short
+    window of correlated samples and can read far below the noise that is always there; a
+    reading under ``noise_floor`` is taken as that floor (a frame whose noise read 21 against
+    a median of 29 gave a confident false bottom 16 m off at 231 LSB, 11 x its reading).
 
     Parameters
     ----------
@@ -179,6 +183,9 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
         The ``min_thr`` register the frames were taken with.
     confident_q4 : int
         Threshold factor in 1/16 (128 = 8.0).
+    noise_floor : int
+        The noise reading of the noise floor alone, filter LSB
+        (``firmware_host.coeffs.SceneBank.floor_noise``; 0: none).
 
     Returns
     -------
@@ -186,7 +193,9 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
     """
     if not (isinstance(confident_q4, int | np.integer) and 0 <= confident_q4 < 1 << 16):
         raise ValueError(f"confident_q4 must be an integer in 0..65535, not {confident_q4!r}")
-    noise = np.asarray(noise, dtype=np.int64)
+    if not (isinstance(noise_floor, int | np.integer) and 0 <= noise_floor < 1 << 24):
+        raise ValueError(f"noise_floor must be an integer in 0..16777215, not {noise_floor!r}")
+    noise = np.maximum(np.asarray(noise, dtype=np.int64), int(noise_floor))
     thr = np.maximum(int(min_thr), (confident_q4 * noise) >> 4)
     return ((np.asarray(surface_amplitude, dtype=np.int64) > thr)
             & (np.asarray(bottom_amplitude, dtype=np.int64) > thr))

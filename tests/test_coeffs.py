@@ -233,6 +233,9 @@ class TestSceneBank:
                                           coeffs.noise_floor_lsb(scene))
         assert measured / white > 1.3  # the floor taken as white: 26 LSB against 37
         assert sb.min_thr == int(np.ceil(coeffs.MIN_THR_SIGMAS * want))
+        # the floor's noise reading: the detector's mean absolute deviation of that noise
+        dev = np.abs(y[:, 63:lead] - y[:, 63:lead].mean()).mean()
+        assert abs(sb.floor_noise / dev - 1) < 0.06 and sb.floor_noise <= dev
 
     def test_out_shift_cannot_saturate(self, made):
         assert made.out_shift == coeffs.out_shift_for(made.bank, -800, 24700)

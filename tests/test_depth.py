@@ -81,3 +81,18 @@ def test_confident_peaks_is_the_threshold_rule_with_another_factor():
     assert not confident_peaks([30], [31], [0], min_thr=30, confident_q4=128)[0]
     with pytest.raises(ValueError, match="confident_q4 must be an integer in 0..65535, not -1"):
         confident_peaks([1], [1], [1], min_thr=0, confident_q4=-1)
+
+
+def test_confident_peaks_counts_a_low_noise_reading_as_the_floor():
+    """A frame whose noise reads under the floor's own is judged at the floor: 10 x 29, not
+    10 x 21 (a confident false bottom at 231 LSB came from such a frame)."""
+    from model.depth import confident_peaks
+
+    noise = np.array([21, 21, 40])
+    amp = np.array([231, 291, 401])
+    plain = confident_peaks(amp, amp, noise, min_thr=158, confident_q4=160)
+    floored = confident_peaks(amp, amp, noise, min_thr=158, confident_q4=160, noise_floor=29)
+    assert plain.tolist() == [True, True, True]
+    assert floored.tolist() == [False, True, True]  # 290 at the floor; 400 read above it
+    with pytest.raises(ValueError, match="noise_floor must be an integer in 0..16777215, not -2"):
+        confident_peaks([1], [1], [1], min_thr=0, confident_q4=16, noise_floor=-2)

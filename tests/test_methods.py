@@ -461,3 +461,22 @@ class TestReproducible:
                 out += [est.depth_m.tobytes(), est.surface_s.tobytes(), est.bottom_s.tobytes()]
             runs.append(out)
         assert runs[1] == runs[0] and runs[2] == runs[0]
+
+
+def test_a_noise_window_that_reads_low_gives_no_confident_false_bottom():
+    """The depth sweep's unstretched batch at 34 m (past the reach): shot 68's noise window
+    read 21 against a median of 29, and a bump of the water column 16 m deep (231 LSB, 11 x
+    that reading) was a confident bottom. Judged at the floor's own reading it is weak."""
+    import dataclasses
+
+    from model.accuracy import DEPTHS_FULL, chunk_seed, study_base
+
+    flat = dataclasses.replace(study_base(DEPTHS_FULL), fidelity_tolerance_m=10.0)
+    shots = make_shots(flat, 34.0, 250, seed=chunk_seed("unstretched", 0, 33, 0))
+    m = get_method("fixed_mf")()
+    m.prepare(setup_for(flat))
+    e = m.estimate(shots)
+    assert e.detected[68] and abs(e.depth_m[68] - 34.0) > 10
+    assert not e.confident[68]
+    wrong = e.detected & (np.abs(e.depth_m - 34.0) > m.error_bound_m)
+    assert not (wrong & e.confident).any()
