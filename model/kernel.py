@@ -61,7 +61,8 @@ def _q8(a, b, c):
 
 @numba.njit(cache=True, inline="always")
 def _detect_step(yf, n, s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr, W, P, n0,
-                 noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule, K, bin_offset, bin_len):
+                 noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule, K, bin_offset, bin_len,
+                 min_surf):
     """One sample of the detector (spec 5): windows, then the peak at ``n - 1``.
 
     Returns the updated state ``s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr``.
@@ -84,8 +85,9 @@ def _detect_step(yf, n, s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr, W, P,
                 and _template(m - 1, s, K, bin_offset, bin_len)
                 == _template(m + 1, s, K, bin_offset, bin_len)):
             if s < 0:
-                s = m
-                vmin = ym
+                if ym - mu > min_surf:  # the surface stands above its own floor
+                    s = m
+                    vmin = ym
             elif m >= s + min_sep:
                 if bottom_rule == 0:
                     b = m
@@ -106,7 +108,7 @@ def _frames(x, h, regs, y, out):
     B, N = x.shape
     K, L = h.shape
     (out_shift, bin_offset, bin_len, noise_log2, k_thr_q4, min_thr, min_sep,
-     bottom_rule) = regs
+     bottom_rule, min_surf) = regs
     half = (1 << out_shift) >> 1
     W = L - 1
     P = 1 << noise_log2
@@ -155,7 +157,8 @@ def _frames(x, h, regs, y, out):
             while n < hi:
                 s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr = _detect_step(
                     yf, n, s, b, best, vmin, mu_sum, dev_sum, mu, noise, thr, W, P, n0,
-                    noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule, K, bin_offset, bin_len)
+                    noise_log2, k_thr_q4, min_thr, min_sep, bottom_rule, K, bin_offset, bin_len,
+                    min_surf)
                 n += 1
                 if not had_surface and s >= 0 and n >= s + bin_offset:
                     break  # a surface just found: y[n..] needs other templates, redo them
@@ -195,7 +198,7 @@ def filter_detect_frames(x: np.ndarray, coefs: np.ndarray, cfg) -> tuple[np.ndar
         found), ``position_q8, amplitude, template, found``.
     """
     regs = np.array([cfg.out_shift, cfg.bin_offset, cfg.bin_len, cfg.noise_log2, cfg.k_thr_q4,
-                     cfg.min_thr, cfg.min_sep, cfg.bottom_rule], dtype=np.int64)
+                     cfg.min_thr, cfg.min_sep, cfg.bottom_rule, cfg.min_surf], dtype=np.int64)
     y = np.empty(x.shape, np.int32)
     out = np.zeros((x.shape[0], 13), np.int64)
     _frames(np.ascontiguousarray(x), coefs.astype(np.float64), regs, y, out)

@@ -4,10 +4,11 @@ On the filter output ``y`` of one frame (``N`` samples, warm-up ``W = L - 1``,
 ``P = 2**noise_log2``):
 baseline ``mu`` over ``[W, W + P)``, mean absolute deviation ``noise`` over ``[W + P, W + 2P)``,
 threshold ``thr = max(min_thr, (k_thr_q4 * noise) >> 4)``; a peak is ``y[n-1] < y[n] >= y[n+1]``
-with ``y[n] - mu > thr`` at ``n`` in ``[W + 2P, N - 2]``; the surface is the first peak, the
-bottom, among the peaks at least ``min_sep`` samples after it, the latest (``bottom_rule = 0``),
-the largest (``1``) or the one rising most above the running minimum since the surface (``2``),
-earliest on a tie; position by an integer parabola in 1/256 sample.
+with ``y[n] - mu > thr`` at ``n`` in ``[W + 2P, N - 2]``; the surface is the first peak with
+``y[n] - mu > min_surf`` too (the surface floor: with 0 the first peak), the bottom, among
+the peaks at least ``min_sep`` samples after it, the latest (``bottom_rule = 0``), the largest
+(``1``) or the one rising most above the running minimum since the surface (``2``), earliest
+on a tie; position by an integer parabola in 1/256 sample.
 
 :class:`PeakDetectStream` is the sample-order twin (what the hardware does): running sums and
 running best peaks, any chunking, same result as :func:`peak_detect`.
@@ -151,7 +152,8 @@ def peak_detect(y, warmup: int, cfg: Config, templates=None) -> PeakResult:
     warmup : int
         ``W = L - 1`` (samples): leading outputs that are the filter filling.
     cfg : Config
-        Uses ``noise_log2``, ``k_thr_q4``, ``min_thr``, ``min_sep``, ``bottom_rule``.
+        Uses ``noise_log2``, ``k_thr_q4``, ``min_thr``, ``min_sep``, ``bottom_rule``,
+        ``min_surf``.
     templates : array of int, shape (..., N), optional
         ``k(n)`` per sample, copied into the records' ``template`` field (default 0).
 
@@ -184,7 +186,8 @@ def peak_detect(y, warmup: int, cfg: Config, templates=None) -> PeakResult:
             tt = ft[lo:hi]
             keep = tt[r, c - 1] == tt[r, c + 1]
             r, c = r[keep], c[keep]
-        found_s, s_n, (r, c) = first_and_rest(r, c, len(yy), cfg.min_sep)
+        surf_ok = yy[r, c] - mu[r] > cfg.min_surf
+        found_s, s_n, (r, c) = first_and_rest(r, c, len(yy), cfg.min_sep, surf_ok)
         found_b, b_n = pick_bottom(r, c, yy, len(yy), cfg.bottom_rule, s_n, thr)
         cols["mu"][lo:hi], cols["noise"][lo:hi], cols["thr"][lo:hi] = mu, noise, thr
         cols["s"][lo:hi], cols["b"][lo:hi] = s_n, b_n
@@ -224,17 +227,20 @@ def find_peaks_rows(v, lo, hi, bound):
     return r, c
 
 
-def first_and_rest(r, c, n_rows, min_sep):
-    """Surface per row (its first peak) and the peaks at least ``min_sep`` after it.
+def first_and_rest(r, c, n_rows, min_sep, surf_ok=None):
+    """Surface per row (its first peak that ``surf_ok`` admits; default: its first peak) and
+    the peaks at least ``min_sep`` after it.
 
+    ``surf_ok`` bool (len(r),): the peak stands above the surface floor (``min_surf``).
     Returns ``found`` bool (R,), ``s`` int64 (R,), and ``(r, c)`` of the bottom candidates.
     """
     found = np.zeros(n_rows, bool)
     s = np.zeros(n_rows, np.int64)
-    head = np.flatnonzero(np.r_[True, r[1:] != r[:-1]]) if len(r) else np.zeros(0, np.int64)
-    found[r[head]] = True
-    s[r[head]] = c[head]
-    keep = c >= s[r] + min_sep
+    sr, sc = (r, c) if surf_ok is None else (r[surf_ok], c[surf_ok])
+    head = np.flatnonzero(np.r_[True, sr[1:] != sr[:-1]]) if len(sr) else np.zeros(0, np.int64)
+    found[sr[head]] = True
+    s[sr[head]] = sc[head]
+    keep = found[r] & (c >= s[r] + min_sep)
     return found, s, (r[keep], c[keep])
 
 
@@ -309,9 +315,11 @@ def peak_detect_reference(y, warmup: int, cfg: Config, templates=None) -> PeakRe
         peaks = n[(v[n - 1] < v[n]) & (v[n] >= v[n + 1]) & (v[n] - mu > thr)
                   & (k[n - 1] == k[n + 1])]
         cols["mu"][f], cols["noise"][f], cols["thr"][f] = mu, noise, thr
-        if len(peaks):
-            fs[f], cols["s"][f] = True, peaks[0]
-            later = peaks[peaks >= peaks[0] + cfg.min_sep]
+        surfaces = peaks[v[peaks] - mu > cfg.min_surf]
+        if len(surfaces):
+            s0 = surfaces[0]
+            fs[f], cols["s"][f] = True, s0
+            later = peaks[peaks >= s0 + cfg.min_sep]
             if len(later):
                 fb[f] = True
                 if cfg.bottom_rule == 0:
@@ -319,7 +327,7 @@ def peak_detect_reference(y, warmup: int, cfg: Config, templates=None) -> PeakRe
                 elif cfg.bottom_rule == 1:
                     cols["b"][f] = later[np.argmax(v[later])]
                 else:  # rise above min(v[s..n]); argmax takes the earliest on a tie
-                    rise = v[later] - np.minimum.accumulate(v[peaks[0]:])[later - peaks[0]]
+                    rise = v[later] - np.minimum.accumulate(v[s0:])[later - s0]
                     if (rise > thr).any():
                         cols["b"][f] = later[np.argmax(np.where(rise > thr, rise, -1))]
                     else:
@@ -356,6 +364,7 @@ class PeakDetectStream:
         self._sums = np.zeros((2, F), np.int64)  # baseline sum, deviation sum
         self._mu = np.zeros(F, np.int64)
         self._bound = np.zeros(F, np.int64)  # mu + thr
+        self._surf_bound = np.zeros(F, np.int64)  # mu + min_surf
         self._thr = np.zeros(F, np.int64)
         self._last = np.zeros((F, 2), np.int64)  # y[n-2], y[n-1]
         self._last_k = np.zeros((F, 2), np.int64)  # k[n-2], k[n-1]
@@ -391,6 +400,7 @@ class PeakDetectStream:
         if self.n <= W + 2 * P - 1 < self.n + c:  # noise window closes: threshold known
             mu, _, thr = thresholds(self._sums[0], self._sums[1], cfg)
             self._bound = mu + thr
+            self._surf_bound = mu + cfg.min_surf
             self._thr = thr
         # centre samples n = self.n - 1 .. self.n + c - 2, each with both neighbours
         ext = np.concatenate([self._last, yy], axis=1)
@@ -400,15 +410,17 @@ class PeakDetectStream:
             centre = np.arange(self.n - 1, self.n + c - 1)
             m = ((a < b) & (b >= cc) & (b > self._bound[:, None]) & (centre >= W + 2 * P)
                  & (ek[:, :c] == ek[:, 2:]))  # one template for the three samples
-            self._update(m, centre, a, b, cc, ek[:, 1:c + 1])
+            self._update(m, m & (b > self._surf_bound[:, None]), centre, a, b, cc,
+                         ek[:, 1:c + 1])
             self._last, self._last_k = ext[:, -2:], ek[:, -2:]
         self.n += c
 
-    def _update(self, m, centre, a, b, c, k):
+    def _update(self, m, ms, centre, a, b, c, k):
+        """``m``: the peaks per lane; ``ms``: those that may be the surface."""
         rows = np.arange(m.shape[0])
         s_found, s_rec = self._cand["s"]
-        new = ~s_found & m.any(axis=1)
-        i = np.argmax(m, axis=1)
+        new = ~s_found & ms.any(axis=1)
+        i = np.argmax(ms, axis=1)
         for col, arr in enumerate((centre[i], a[rows, i], b[rows, i], c[rows, i], k[rows, i])):
             s_rec[new, col] = arr[new]
         s_found |= new

@@ -52,6 +52,8 @@ _SPEC = [
     ("min_thr", 24, 1, 0, (1 << 24) - 1, "peak", "threshold floor, filter LSB"),
     ("min_sep", 16, 12, 1, 65535, "peak", "minimum samples from the surface to a bottom peak"),
     ("bottom_rule", 2, 0, 0, 2, "peak", "0 latest peak (seed 000), 1 largest, 2 largest rise"),
+    ("min_surf", 24, 0, 0, (1 << 24) - 1, "peak",
+     "surface floor: the surface is the first peak standing more than this above mu, filter LSB"),
 ]
 
 REGISTERS: tuple[Register, ...] = tuple(

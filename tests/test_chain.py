@@ -32,6 +32,22 @@ class TestChain:
         np.testing.assert_array_equal(a.peaks.records()[0], b.peaks.records()[0])
         assert a.peaks.surface.found.sum() > 20  # the synthetic echoes are found
 
+    def test_surface_floor_in_the_fused_loop_equals_the_reference(self, batch):
+        """``min_surf`` moves the surface, and with it the template switches: the fused
+        filter-and-detect loop against the per-frame reference, at a floor that half of the
+        frames' first peaks fail."""
+        adc, bank = batch
+        cfg = Config(stitch_mode=1, out_shift=12, bin_offset=24, bin_len=30, min_thr=20)
+        plain = run_chain(adc, bank, cfg).peaks
+        floor = int(np.median(plain.surface.amplitude[plain.surface.found]))
+        cfg = cfg.replace(min_surf=floor)
+        a, b = run_chain(adc, bank, cfg), run_chain_reference(adc, bank, cfg)
+        np.testing.assert_array_equal(a.filtered, b.filtered)
+        np.testing.assert_array_equal(a.peaks.records()[0], b.peaks.records()[0])
+        moved = a.peaks.surface.n != plain.surface.n
+        assert moved.sum() >= 5 and np.all(a.peaks.surface.amplitude[a.peaks.surface.found]
+                                           > floor)
+
     def test_frames_split_anywhere_give_the_same_results(self, batch):
         adc, bank = batch
         cfg = Config(stitch_mode=1, out_shift=12)

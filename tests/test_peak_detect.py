@@ -40,7 +40,8 @@ def noisy_case(seed, B=4, N=None, W=None):
     W = int(rng.integers(0, 64)) if W is None else W
     cfg = Config(noise_log2=int(rng.integers(2, 6)), k_thr_q4=int(rng.integers(0, 200)),
                  min_thr=int(rng.integers(0, 40)), min_sep=int(rng.integers(1, 30)),
-                 bottom_rule=int(rng.integers(0, 3)))
+                 bottom_rule=int(rng.integers(0, 3)),
+                 min_surf=int(rng.integers(0, 30)) * int(rng.integers(0, 2)))  # 0 half the time
     y = rng.integers(-30, 30, (B, N)) // int(rng.integers(1, 10))  # coarse: many plateaus
     return y.astype(np.int32), W, cfg, rng.integers(0, 16, (B, N))
 
@@ -169,6 +170,26 @@ class TestPeakDetect:
         y = frame(80, 0, [(20, 900), (20 + gap, 500)])
         res = peak_detect(y, 0, Config(noise_log2=2, min_thr=100, min_sep=12))
         assert bool(res.bottom.found) == found
+
+    @pytest.mark.parametrize(("min_surf", "surface"), [
+        (0, 20), (299, 20), (300, 40), (899, 40), (900, None)])
+    @pytest.mark.parametrize("rule", [0, 1, 2])
+    def test_surface_floor_is_strict_and_skips_earlier_peaks(self, min_surf, surface, rule):
+        """Peaks of 300, 900 and 500 over a threshold of 100: the surface is the first one
+        standing more than ``min_surf`` above ``mu``; a peak before it is no bottom either
+        (with the surface at 40, every rule takes 60)."""
+        bottom = {20: (60, 40, 40)[rule], 40: 60, None: None}[surface]
+        y = frame(90, 7, [(20, 300), (40, 900), (60, 500)])
+        cfg = Config(noise_log2=2, min_thr=100, min_sep=12, bottom_rule=rule,
+                     min_surf=min_surf)
+        for r in (peak_detect(y, 0, cfg), peak_detect_reference(y, 0, cfg)):
+            assert bool(r.surface.found) == (surface is not None)
+            assert bool(r.bottom.found) == (bottom is not None)
+            if surface is not None:
+                assert int(r.surface.n) == surface and int(r.bottom.n) == bottom
+        stream = PeakDetectStream(0, cfg)
+        stream.feed(y)
+        assert_same(stream.end_frame(), peak_detect(y, 0, cfg))
 
     @pytest.mark.parametrize(("a", "b", "c", "q"), [
         (10, 20, 10, 0), (10, 20, 20, 128), (0, 20, 10, 43), (10, 20, 0, -43),
