@@ -90,10 +90,10 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     """
     cfg, L, LA, depth = top.cfg, top.lanes, top.lookahead, levels
     rec = record_layout(d1.k.shape().elem_shape)
-    d2, d2_valid, d2_peak, d2a_cpos, d2_cpos = _local_maxima(
-        m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, stats.bound)
+    d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos = _local_maxima(
+        m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, stats.bound, stats.sbound)
     s_found, sep_at, d3_new, d3_elig = _surface(m, top.surface, L, d2, d2_valid, d2_peak,
-                                                d2a_cpos, d2_cpos, ms_le)
+                                                d2_speak, d2a_cpos, d2_cpos, ms_le)
     # The beat travels with its valid bit to C, 4 depth + 8 clocks after D2; it is read at
     # D3 (bd1: everything), R (bt_r, 2 depth + 2 clocks on: the samples), B2 (bt_b, 4 depth
     # + 6 clocks on: samples, templates, base, first) and C (bt_c: last, long). The long
@@ -126,12 +126,13 @@ def _lane_record(m, rec, bt, j, n):
     return r
 
 
-def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound):
+def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, dec_sbound):
     """D2a, D2: the local-maximum tests per lane, as the beat leaves D1.
 
     Returns the beat's copy at D2 (``e``: the previous beat's last two samples and the lanes,
     ``ke``, ``base``, ``first``, ``last``, ``long``, ``tag``), its valid bit, the peak flags
-    per lane and the centres' positions at D2a and D2.
+    per lane, the same for peaks above the surface's bound (``dec_sbound``) too, and the
+    centres' positions at D2a and D2.
     """
     k_shape = d1.k.shape().elem_shape
     y1, y2 = Signal(_Y), Signal(_Y)  # the last two samples of the previous beat
@@ -150,7 +151,7 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound):
     # chain, and `bound` -> `y > bound` -> D2a was the worst path (6.7 ns)
     d2a = Signal(beat)
     d2a_valid = _reg(m, go, 1, "d2a_valid")
-    tests = []
+    tests, s_tests = [], []
     d2a_cpos = [Signal(_POS, name=f"d2a_cpos{j}") for j in range(L)]  # centre base + j - 1
     for j in range(L):
         a, b, c = ev[j], ev[j + 1], ev[j + 2]
@@ -159,6 +160,7 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound):
                 (Const(j) < d1.count) & ~_sub_sign(m, d1_base, cand_at[j], f"d2a_cand{j}"),
                 _sub_sign(m, dec_bound, b, f"d2a_thr{j}")]
         tests.append([_reg(m, t, 1, f"d2a_t{j}_{i}") for i, t in enumerate(lane)])
+        s_tests.append(_reg(m, _sub_sign(m, dec_sbound, b, f"d2a_sthr{j}"), 1, f"d2a_s{j}"))
         m.d.sync += d2a_cpos[j].eq(d1_base + (j - 1))
     m.d.sync += [d2a.e[j].eq(v) for j, v in enumerate(ev)]
     m.d.sync += [d2a.ke[j].eq(v) for j, v in enumerate(kv)]
@@ -166,15 +168,16 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound):
                  d2a.long.eq(d1_needs), d2a.tag.eq(d1_tag)]
     d2 = _reg(m, d2a, beat, "d2")
     d2_valid = _reg(m, d2a_valid, 1, "d2_valid")
-    d2_peak = Signal(L)
+    d2_peak, d2_speak = Signal(L), Signal(L)
     m.d.sync += [d2_peak[j].eq(reduce(and_, tests[j])) for j in range(L)]
+    m.d.sync += [d2_speak[j].eq(reduce(and_, tests[j]) & s_tests[j]) for j in range(L)]
     d2_cpos = [_reg(m, v, _POS, f"d2_cpos{j}") for j, v in enumerate(d2a_cpos)]
-    return d2, d2_valid, d2_peak, d2a_cpos, d2_cpos
+    return d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos
 
 
-def _surface(m, surface, L, d2, d2_valid, d2_peak, d2a_cpos, d2_cpos, ms_le):
-    """D3: the surface (first peak of the frame) and its message on ``surface``, lanes
-    eligible as a bottom.
+def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos, ms_le):
+    """D3: the surface (the frame's first peak above the surface's bound, ``d2_speak``) and
+    its message on ``surface``, lanes eligible as a bottom (peaks, ``d2_peak``).
 
     Returns ``s_found`` (the frame has its surface, through this beat), ``sep_at`` (``s +
     min_sep``, loaded at D4), ``d3_new`` (the surface's lane, one-hot, if found in the beat
@@ -196,14 +199,14 @@ def _surface(m, surface, L, d2, d2_valid, d2_peak, d2a_cpos, d2_cpos, ms_le):
     sep_ok = [_reg(m, ~_sub_sign(m, d2a_cpos[j], sep_at, f"d3_sep{j}"), 1, f"d3_sep{j}")
               for j in range(L)]
     found = s_found & ~d2.first
-    pre = [d2_peak[:j + 1].any() for j in range(L)]  # a peak at or before lane j
-    fo = [d2_peak[0]] + [d2_peak[j] & ~pre[j - 1] for j in range(1, L)]  # the first, one-hot
+    pre = [d2_speak[:j + 1].any() for j in range(L)]  # a surface peak at or before lane j
+    fo = [d2_speak[0]] + [d2_speak[j] & ~pre[j - 1] for j in range(1, L)]  # the first, one-hot
     new_s = Signal()
-    m.d.comb += new_s.eq(d2_valid & ~found & d2_peak.any())
+    m.d.comb += new_s.eq(d2_valid & ~found & d2_speak.any())
     near, near2 = s_lane.any(), s_lane2.any()
     d3_elig = Signal(L)
     for j in range(L):
-        sep_new = reduce(or_, [d2_peak[i] & ms_le[j - i] for i in range(j + 1)])
+        sep_new = reduce(or_, [d2_speak[i] & ms_le[j - i] for i in range(j + 1)])
         sep_near = reduce(or_, [s_lane[i] & ms_le[L + j - i] for i in range(L)])
         sep_near2 = reduce(or_, [s_lane2[i] & ms_le[2 * L + j - i] for i in range(L)])
         sep_old = Mux(near, sep_near, Mux(near2, sep_near2, sep_ok[j]))

@@ -62,6 +62,10 @@ class WindowStats(NamedTuple):
     #: from them a clock ahead. ``None`` with the lookahead
     bound_new: Signal | None = None
     bound_tag: Signal | None = None
+    #: ``_Y``: the surface's bound ``min(mu + min_surf, _Y_HI)`` (``y - mu > min_surf`` is
+    #: ``y > sbound``), loaded with ``bound``: the register without the lookahead, ``cur.sbound``
+    #: with it
+    sbound: Value | None = None
 
 
 def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_tag, st_valid,
@@ -72,7 +76,8 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     ----------
     m : Module
     cfg : the ``peak`` registers
-        ``k_thr_q4`` and ``min_thr`` are read here (``noise_log2`` through ``window_shift``).
+        ``k_thr_q4``, ``min_thr`` and ``min_surf`` are read here (``noise_log2`` through
+        ``window_shift``).
     lanes, levels, lookahead : int
         Samples per beat ``L``, ``ceil(log2 L)`` and the lookahead ``D`` in beats (0: none).
     st_beat, st_base, st_tag, st_valid
@@ -209,19 +214,25 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     mu_at = _delay(m, mu, depth + 11, "la_mu") if LA else [mu]
     total = _reg(m, mu_at[depth + 9 if LA else 0] + thr,
                  signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1), "bound_total")
+    # the surface's bound mu + min_surf likewise, from the same mu, loaded with bound
+    sbound = Signal(_Y)
+    s_total = _reg(m, mu_at[depth + 9 if LA else 0] + cfg.min_surf,
+                   signed(max(OUT_WIDTH, len(cfg.min_surf) + 1) + 1), "sbound_total")
     total_new = _delay(m, prod_new, 2, "bound_new")[-1]
     total_tag = _delay(m, prod_tag, 2, "bound_tag")[-1]
     with m.If(total_new):
         # (total > _Y_HI: not negative, and a bit at or above the sign of y set)
         over = ~total[-1] & total[OUT_WIDTH - 1:-1].any()
-        m.d.sync += bound.eq(Mux(over, _Y_HI, total))
+        s_over = ~s_total[-1] & s_total[OUT_WIDTH - 1:-1].any()
+        m.d.sync += [bound.eq(Mux(over, _Y_HI, total)), sbound.eq(Mux(s_over, _Y_HI, s_total))]
     if not LA:
-        return WindowStats(mu, noise, thr, bound, None, None, total_new, total_tag)
-    cur, cur_thr_k = _frame_queue(m, t_dev, mu_at, noise, thr, bound, q_pop, stats_ok)
-    return WindowStats(mu, noise, thr, cur.bound, cur, cur_thr_k)
+        return WindowStats(mu, noise, thr, bound, None, None, total_new, total_tag,
+                           sbound=sbound)
+    cur, cur_thr_k = _frame_queue(m, t_dev, mu_at, noise, thr, bound, sbound, q_pop, stats_ok)
+    return WindowStats(mu, noise, thr, cur.bound, cur, cur_thr_k, sbound=cur.sbound)
 
 
-def _frame_queue(m, t_dev, mu_at, noise, thr, bound, q_pop, stats_ok):
+def _frame_queue(m, t_dev, mu_at, noise, thr, bound, sbound, q_pop, stats_ok):
     """The lookahead's queue of per-frame statistics (``_QUEUE`` entries); returns ``(cur,
     cur_thr_k)``.
 
@@ -236,11 +247,13 @@ def _frame_queue(m, t_dev, mu_at, noise, thr, bound, q_pop, stats_ok):
     # them from ``cur``, loaded from the queue's head (a register) when free or as the
     # frame using it leaves (its last beat's go).
     push_at = _delay(m, _reg(m, t_dev.valid & t_dev.push, 1, "la_push0"), 8, "la_push")[-1]
-    qrec = data.StructLayout({"mu": _Y, "noise": NOISE_WIDTH, "thr": THR_WIDTH, "bound": _Y})
+    qrec = data.StructLayout({"mu": _Y, "noise": NOISE_WIDTH, "thr": THR_WIDTH, "bound": _Y,
+                              "sbound": _Y})
     q = m.submodules.la_stats = _Store(qrec.size, _QUEUE)
     entry = Signal(qrec, name="la_entry")
     m.d.comb += [entry.mu.eq(mu_at[-1]), entry.noise.eq(_delay_to(m, noise, 6, "la_noise")),
                  entry.thr.eq(_delay(m, thr, 2, "la_thr")[-1]), entry.bound.eq(bound),
+                 entry.sbound.eq(sbound),
                  q.w_data.eq(entry), q.w_en.eq(push_at), q.w_keep.eq(push_at)]
     cur, cur_valid = Signal(qrec, name="la_cur"), Signal(name="la_cur_valid")
     cur_thr_k = Signal(unsigned(_KEY.width - 1), name="la_cur_thr_k")

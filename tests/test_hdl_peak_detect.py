@@ -14,6 +14,7 @@ three lanes (``tests/test_hdl_peak_detect_lanes.py``), so it costs no build of i
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 from dataclasses import dataclass
@@ -154,6 +155,15 @@ def edge_frames(L, cfg, rng):
     y = np.full(n0 + 60, Y_HI, np.int64)  # noise at its largest: y alternates rail to rail
     y[W + P:] = np.where(np.arange(n0 + 60 - W - P) % 2, Y_LO, Y_HI)
     add(y)
+    # the surface floor at minus and plus one: a peak standing exactly min_surf above mu is
+    # no surface (nor a bottom), one standing a unit more is; then a bottom
+    y = base(n0 + 80)
+    mu = int(y[W:W + P].sum()) >> cfg.noise_log2
+    y[n0 + 5] = mu + cfg.min_surf
+    y[n0 + 20] = mu + cfg.min_surf + 1
+    y[n0 + 21] = mu + cfg.min_surf + 1  # a plateau: its first sample
+    y[n0 + 60] = mu + cfg.min_surf // 2 + cfg.min_thr + 7
+    add(y)
     return ys, ks
 
 
@@ -176,6 +186,9 @@ CONFIGS = {
     "rule2_L1_P256": (1, Config(noise_log2=8, k_thr_q4=40, min_thr=0, min_sep=65535,
                                 bottom_rule=2)),
     "thr_max": (8, Config(noise_log2=5, k_thr_q4=4095, min_thr=(1 << 24) - 1, bottom_rule=1)),
+    # the surface floor above the threshold: first peaks under it are skipped
+    "surf_floor": (16, Config(noise_log2=3, k_thr_q4=64, min_thr=500, min_sep=4, bottom_rule=2,
+                              min_surf=50_000)),
 }
 
 
@@ -265,6 +278,18 @@ def test_verilator(tmp_path, config_name, traffic_name):
         dut = PeakDetect()  # for its latency attributes only
         dut._MustUse__silence = True
         check_latencies(res, SimpleNamespace(ys=fr.ys, group=[fr] * len(fr.ys)), results, dut)
+
+
+def test_surface_floor_vectors_move_surfaces():
+    """The ``surf_floor`` vectors have frames whose first peak the floor skips (else its
+    Verilator runs prove nothing of it), the edge frame's among them."""
+    fr = frames_for("surf_floor")
+    plain = dataclasses.replace(fr, cfg=fr.cfg.replace(min_surf=0))
+    a, b = fr.results(), plain.results()
+    moved = [i for i, (x, y) in enumerate(zip(a, b, strict=True))
+             if int(x.surface.n) != int(y.surface.n) or bool(x.surface.found)
+             != bool(y.surface.found)]
+    assert len(moved) >= 5
 
 
 def test_bottom_rules_differ():
