@@ -29,6 +29,7 @@ from model.registers import by_name
 __all__ = [
     "BANK_FORMAT",
     "CONFIDENT_K_THR_Q4",
+    "MIN_SURF_X",
     "MIN_THR_SIGMAS",
     "SURVEY_K_THR_Q4",
     "SURVEY_NOISE_LOG2",
@@ -73,11 +74,12 @@ def survey_registers(sb, stitch_mode: int = 1, bottom_rule: int = 2) -> dict:
     """The registers a survey runs a :class:`SceneBank` with (``albcap config --bank``).
 
     ``stitch_mode`` 1 (``linear``) or 0 (``paper``); ``bottom_rule`` 2 (largest rise). The
-    threshold is :data:`SURVEY_K_THR_Q4` over noise windows of ``2**SURVEY_NOISE_LOG2``.
+    threshold is :data:`SURVEY_K_THR_Q4` over noise windows of ``2**SURVEY_NOISE_LOG2``, its
+    floor and the surface's floor the bank's ``min_thr`` and ``min_surf``.
     """
     return {"stitch_mode": stitch_mode, "out_shift": sb.out_shift, "bin_offset": sb.bin_offset,
             "bin_len": sb.bin_len, "min_thr": sb.min_thr, "noise_log2": SURVEY_NOISE_LOG2,
-            "k_thr_q4": SURVEY_K_THR_Q4, "bottom_rule": bottom_rule}
+            "k_thr_q4": SURVEY_K_THR_Q4, "bottom_rule": bottom_rule, "min_surf": sb.min_surf}
 
 
 def survey_scene(scene):
@@ -115,6 +117,14 @@ def _floor_parts_lsb(scene) -> tuple[float, float]:
 #: ``k_thr_q4 = 104``: 41.5, 39.4, 36.1, 30.4, 5.3 %; the unstretched bottom at 30 m with the
 #: fixed filter: 54.9, 53.1, 51.5, 47.6, 27.5 %). ``docs/methods.md``, "The threshold floor".
 MIN_THR_SIGMAS = 4.25
+
+#: ``min_surf``, the surface's own floor, in ``min_thr``: 16 x 158 = 2528 LSB, 68 deviations
+#: of the noise floor, where no noise bump reaches, and 17 x under the weakest surface of the
+#: stability suite's scenes (the high-gain channel alone, clipping at 255: 44 265 LSB; with
+#: the three channels every surface there stood at 2.79-3.3 million). A frame whose noise
+#: window reads low keeps its low threshold for the bottom (the reach) but cannot take a noise
+#: bump before the surface echo for the surface (``docs/methods.md``, "The threshold floor").
+MIN_SURF_X = 16
 
 
 def filtered_floor_rms(scene, taps, out_shift: int, adc_noise_lsb: float | None = None) -> float:
@@ -336,6 +346,8 @@ class SceneBank:
         Register: the smallest shift that cannot saturate for the stitched range given.
     snr_loss_db : float64 ndarray, shape (K,)
         Matched-filter SNR lost to quantization, dB.
+    min_surf : int
+        Register: the surface's own floor, :data:`MIN_SURF_X` times ``min_thr``.
     floor_noise : int
         The noise reading (the detector's mean absolute deviation, filter LSB) of the noise
         floor alone, ``sqrt(2 / pi)`` of :func:`filtered_floor_rms`, rounded down: a frame's
@@ -361,6 +373,7 @@ class SceneBank:
     min_thr: int
     coverage: np.ndarray
     floor_noise: int
+    min_surf: int
 
 
 def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
@@ -496,6 +509,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     bank = bank_from_templates(templates, ref, bank_id)
     shift = out_shift_for(bank, *x_range)
     sigma_y = filtered_floor_rms(scene, bank.coefs[0], shift, adc_noise_lsb)
+    min_thr = int(np.ceil(MIN_THR_SIGMAS * sigma_y))
     return SceneBank(
         bank=bank,
         templates=templates,
@@ -505,9 +519,10 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         bin_len=max(1, round(width_m / m_per_sample)),
         out_shift=shift,
         snr_loss_db=quantization_snr_loss_db(templates, bank),
-        min_thr=int(np.ceil(MIN_THR_SIGMAS * sigma_y)),
+        min_thr=min_thr,
         coverage=coverage,
         floor_noise=math.floor(math.sqrt(2 / math.pi) * sigma_y),
+        min_surf=min((1 << 24) - 1, MIN_SURF_X * min_thr),
     )
 
 

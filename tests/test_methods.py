@@ -480,3 +480,22 @@ def test_a_noise_window_that_reads_low_gives_no_confident_false_bottom():
     assert not e.confident[68]
     wrong = e.detected & (np.abs(e.depth_m - 34.0) > m.error_bound_m)
     assert not (wrong & e.confident).any()
+
+
+def test_a_noise_bump_before_the_surface_is_not_the_surface():
+    """The depth sweep's Monte Carlo batch at 16 m, shot 86: its noise window read 19 against
+    a median of 29.5, its threshold fell to ``min_thr`` (158) and a noise bump of 159 LSB 20 ns
+    before the surface echo was taken for the surface (the echo then for the bottom: 2.2 m,
+    13.8 m off, weak). The surface's own floor (``min_surf``) leaves that bump below it."""
+    from model.accuracy import DEPTHS_FULL, chunk_seed, study_base
+
+    base = study_base(DEPTHS_FULL)
+    shots = make_shots(base, 16.0, 250, seed=chunk_seed("main", 0, 15, 1))
+    m = get_method("adaptive_mf")()
+    m.prepare(setup_for(base))
+    assert m._cfg.min_surf == 16 * m._cfg.min_thr
+    e = m.estimate(shots)
+    assert e.detected[86] and abs(e.depth_m[86] - 16.0) < 0.1
+    m._cfg = m._cfg.replace(min_surf=0)  # the floor off: the bump is the surface again
+    e0 = m.estimate(shots)
+    assert e0.detected[86] and abs(e0.depth_m[86] - 16.0) > 10
