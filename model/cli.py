@@ -20,10 +20,13 @@ def _cmd_vectors(args) -> int:
 
 
 def _cmd_spec(args) -> int:
+    from .link import render_link_tables
     from .spec_tables import SPEC_PATH, render
 
     text = SPEC_PATH.read_text()
-    new = render(text)
+    # both kinds of generated table: the registers' and stages' (sections 1-8) and the
+    # link's (section 9, whose register range moves with the map)
+    new = render_link_tables(render(text))
     if args.write:
         if new != text:
             SPEC_PATH.write_text(new)
