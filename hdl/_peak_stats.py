@@ -220,11 +220,11 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
                    signed(max(OUT_WIDTH, len(cfg.min_surf) + 1) + 1), "sbound_total")
     total_new = _delay(m, prod_new, 2, "bound_new")[-1]
     total_tag = _delay(m, prod_tag, 2, "bound_tag")[-1]
+    def capped(t):  # min(t, _Y_HI): t > _Y_HI is not negative with a bit at or above y's sign
+        return Mux(~t[-1] & t[OUT_WIDTH - 1:-1].any(), _Y_HI, t)
+
     with m.If(total_new):
-        # (total > _Y_HI: not negative, and a bit at or above the sign of y set)
-        over = ~total[-1] & total[OUT_WIDTH - 1:-1].any()
-        s_over = ~s_total[-1] & s_total[OUT_WIDTH - 1:-1].any()
-        m.d.sync += [bound.eq(Mux(over, _Y_HI, total)), sbound.eq(Mux(s_over, _Y_HI, s_total))]
+        m.d.sync += [bound.eq(capped(total)), sbound.eq(capped(s_total))]
     if not LA:
         return WindowStats(mu, noise, thr, bound, None, None, total_new, total_tag,
                            sbound=sbound)
