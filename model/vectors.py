@@ -171,6 +171,18 @@ def _peak_cases(rng):
         cases.append({"name": f"rule{rule}", "config": cfg,
                       "arrays": {"y": y, "warmup": np.array([31]), "mu": r.mu, "noise": r.noise,
                                  "records": recs, "count": count}})
+    # the surface floor: a bump above the threshold 30 samples before half the surfaces, which
+    # rule 0's frames take for their surface and this case's floor skips
+    y = y.copy()
+    y[::2, :] += np.rint(400 * np.exp(-0.5 * ((np.arange(512) - 100) / 3.0) ** 2)).astype(
+        np.int32)[None, :]
+    y[2] = 2**23 - 1
+    cfg = Config(bottom_rule=2, noise_log2=5, k_thr_q4=128, min_sep=12, min_surf=1000)
+    r = peak_detect(y, 31, cfg)
+    recs, count = r.records()
+    cases.append({"name": "surface_floor", "config": cfg,
+                  "arrays": {"y": y, "warmup": np.array([31]), "mu": r.mu, "noise": r.noise,
+                             "records": recs, "count": count}})
     return cases
 
 

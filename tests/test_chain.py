@@ -98,6 +98,18 @@ class TestVectors:
         codes = set(case["arrays"]["adc"].ravel().tolist())
         assert {0, 1, 199, 200, 201, 254, 255} <= codes
 
+    def test_peak_vectors_hold_a_surface_the_floor_skips(self):
+        """The ``surface_floor`` case: frames whose first peak over the threshold is a bump
+        under ``min_surf`` (their surface without the floor), so a twin that ignores the
+        register fails it."""
+        from model.peak_detect import peak_detect
+
+        case = next(c for c in stage_vectors("peak_detect") if c["name"] == "surface_floor")
+        y, cfg = case["arrays"]["y"], case["config"]
+        with_floor = peak_detect(y, 31, cfg).surface.n
+        without = peak_detect(y, 31, cfg.replace(min_surf=0)).surface.n
+        assert (with_floor != without).sum() >= 3
+
     def test_written_files_match_the_arrays(self, tmp_path):
         root = write_vectors("peak_detect", tmp_path)
         man = json.loads((root / "manifest.json").read_text())
