@@ -452,6 +452,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         from sim.montecarlo import bottom_returns
         from sim.stretching import mc_params
 
+        law = law_for_scene(scene, scene.max_depth_m) if fidelity == "stretched" else None
+
         def returns_sim(at_m):
             # The scene's own bottom model where it is closed-form (analytic: the pulse, spread
             # only by a sloping bottom; stretched: the fitted law): a bank made from Monte
@@ -484,7 +486,6 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
             waves, sums = waves[last], sums[last]
             return mc.time_s, step, waves, (waves @ mc.time_s) / sums
 
-        law = law_for_scene(scene, scene.max_depth_m) if fidelity == "stretched" else None
         returns = returns_mc if fidelity == "montecarlo" else returns_sim
         # The template in use is chosen by the filter output's position, where a return shows
         # its centroid, not its hit time: a bin's template is the return whose centroid falls

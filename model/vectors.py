@@ -159,30 +159,31 @@ def _echo_frames(rng, B, N, amp_hi=2000):
     return np.rint(y).astype(np.int32)
 
 
+def _peak_case(name, y, cfg):
+    r = peak_detect(y, 31, cfg)
+    recs, count = r.records()
+    return {"name": name, "config": cfg,
+            "arrays": {"y": y, "warmup": np.array([31]), "mu": r.mu, "noise": r.noise,
+                       "records": recs, "count": count}}
+
+
 def _peak_cases(rng):
-    cases = []
     y = _echo_frames(rng, 8, 512)
     y[1, 300:303] = 5000  # a plateau
     y[2] = 2**23 - 1  # flat at the rail: no peaks
-    for rule in (0, 1):
-        cfg = Config(bottom_rule=rule, noise_log2=5, k_thr_q4=128, min_sep=12)
-        r = peak_detect(y, 31, cfg)
-        recs, count = r.records()
-        cases.append({"name": f"rule{rule}", "config": cfg,
-                      "arrays": {"y": y, "warmup": np.array([31]), "mu": r.mu, "noise": r.noise,
-                                 "records": recs, "count": count}})
+    cases = [_peak_case(f"rule{rule}", y, Config(bottom_rule=rule, noise_log2=5, k_thr_q4=128,
+                                                 min_sep=12))
+             for rule in (0, 1)]
     # the surface floor: a bump above the threshold 30 samples before half the surfaces, which
-    # rule 0's frames take for their surface and this case's floor skips
+    # rule 0's frames take for their surface and this case's floor skips (the rail frame kept
+    # at the rail: the bump would carry it past the s24 range)
+    bump = np.rint(400 * np.exp(-0.5 * ((np.arange(512) - 100) / 3.0) ** 2)).astype(np.int32)
     y = y.copy()
-    y[::2, :] += np.rint(400 * np.exp(-0.5 * ((np.arange(512) - 100) / 3.0) ** 2)).astype(
-        np.int32)[None, :]
+    y[::2] += bump
     y[2] = 2**23 - 1
-    cfg = Config(bottom_rule=2, noise_log2=5, k_thr_q4=128, min_sep=12, min_surf=1000)
-    r = peak_detect(y, 31, cfg)
-    recs, count = r.records()
-    cases.append({"name": "surface_floor", "config": cfg,
-                  "arrays": {"y": y, "warmup": np.array([31]), "mu": r.mu, "noise": r.noise,
-                             "records": recs, "count": count}})
+    cases.append(_peak_case("surface_floor", y, Config(bottom_rule=2, noise_log2=5,
+                                                        k_thr_q4=128, min_sep=12,
+                                                        min_surf=1000)))
     return cases
 
 

@@ -124,10 +124,7 @@ def resolve_fidelity(scene, fidelity: str = "auto", d_max: float | None = None) 
     """The bottom-return model :func:`simulate` uses for ``scene`` when its deepest bottom is
     ``d_max`` [m] (default ``scene.max_depth_m``; ``nan``: no bottom): ``fidelity`` itself
     unless it is ``"auto"`` (see :func:`simulate`)."""
-    return _resolve_fidelity(scene, fidelity, scene.max_depth_m if d_max is None else d_max)
-
-
-def _resolve_fidelity(scene, fidelity, d_max):
+    d_max = scene.max_depth_m if d_max is None else d_max
     if fidelity not in FIDELITIES:
         raise ValueError(f"fidelity must be one of {list(FIDELITIES)}, not {fidelity!r}")
     if fidelity != "auto":
@@ -233,7 +230,7 @@ def simulate(scene: Scene, n_waveforms: int, seed: int, fidelity: str = "auto",
     rng = np.random.default_rng(seed)
     has_b = np.isfinite(d)
     d_max = float(d[has_b].max()) if has_b.any() else math.nan
-    fid = _resolve_fidelity(scene, fidelity, d_max)
+    fid = resolve_fidelity(scene, fidelity, d_max)
     dt = scene.dt_s
     n = scene.n_water
     th_w = optics.refracted_angle(scene.incidence_deg, n)
@@ -335,7 +332,7 @@ def bottom_kernel(scene: Scene, depth_m, t_s, fidelity: str = "auto"):
         raise ValueError(f"depth_m must be finite depths >= 0 of shape (n,), not {depth_m!r}")
     t = np.asarray(t_s, dtype=np.float64)
     d_max = float(d.max())
-    fid = _resolve_fidelity(scene, fidelity, d_max)
+    fid = resolve_fidelity(scene, fidelity, d_max)
     sigma = scene.pulse_fwhm_s / math.sqrt(8 * math.log(2))
     law = _scene_law(scene, d_max) if fid == "stretched" else None
     mc = _mc_kernels(scene, d, sigma) if fid == "montecarlo" else None
