@@ -35,6 +35,7 @@ __all__ = [
     "SURVEY_NOISE_LOG2",
     "SceneBank",
     "bank_from_templates",
+    "distinct_templates",
     "filtered_floor_rms",
     "gaussian_pulse",
     "load_bank_json",
@@ -379,7 +380,8 @@ class SceneBank:
 def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
                x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
                mc_packets: int = 20000, mc_seed: int = 4242,
-               adc_noise_lsb: float | None = None, min_bin_offset: int = 0) -> SceneBank:
+               adc_noise_lsb: float | None = None, min_bin_offset: int = 0,
+               merge_equal: bool = True) -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
@@ -416,6 +418,14 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         ``lanes`` samples per clock is exact only for ``bin_offset >= min_bin_offset``
         (``hdl.detect.FilterDetect.min_bin_offset``), so its bank starts template 1 no
         shallower than that (``first_bin_m`` is raised to it when it is shallower).
+    merge_equal : bool
+        Drop the bins whose template equals its neighbour's (:func:`distinct_templates`):
+        the first bins that equal template 0 (``bin_offset`` moves down past them) and the last
+        bins that repeat the one before. A switch between equal templates changes no filter
+        output, but the detector still refuses a peak whose neighbours straddle it (spec
+        section 5, step 4): a blind band two samples wide for nothing. On an unstretched
+        bottom every bin holds the pulse and the bank becomes the fixed filter (``K = 1``).
+        ``False`` keeps all ``n_templates``.
     """
     from sim.optics import refracted_angle
     from sim.stretching import law_for_scene
@@ -508,6 +518,13 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
             # share of the return's area the window holds (the rest is the tail cut off)
             coverage[k] = min(1.0, templates[k].sum() * dt / (waves[k - 1].sum() * step))
     bank = bank_from_templates(templates, ref, bank_id)
+    bin_offset = max(by_name("bin_offset").lo, min_bin_offset, round(first_bin_m / m_per_sample))
+    bin_len = max(1, round(width_m / m_per_sample))
+    if merge_equal:
+        keep, lead = distinct_templates(bank)
+        bank = Bank(bank.coefs[keep], bank.ref_offsets[keep], bank_id)
+        templates, depths, coverage = templates[keep], depths[keep], coverage[keep]
+        bin_offset = min(by_name("bin_offset").hi, bin_offset + lead * bin_len)
     shift = out_shift_for(bank, *x_range)
     sigma_y = filtered_floor_rms(scene, bank.coefs[0], shift, adc_noise_lsb)
     min_thr = int(np.ceil(MIN_THR_SIGMAS * sigma_y))
@@ -515,9 +532,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         bank=bank,
         templates=templates,
         bin_depths_m=depths,
-        bin_offset=max(by_name("bin_offset").lo, min_bin_offset,
-                       round(first_bin_m / m_per_sample)),
-        bin_len=max(1, round(width_m / m_per_sample)),
+        bin_offset=bin_offset,
+        bin_len=bin_len,
         out_shift=shift,
         snr_loss_db=quantization_snr_loss_db(templates, bank),
         min_thr=min_thr,
@@ -525,6 +541,39 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         floor_noise=math.floor(math.sqrt(2 / math.pi) * sigma_y),
         min_surf=min((1 << 24) - 1, MIN_SURF_X * min_thr),
     )
+
+
+def distinct_templates(bank: Bank) -> tuple[list[int], int]:
+    """The templates of ``bank`` a detector needs: equal neighbours dropped.
+
+    Two templates are *equal* when their taps differ by at most 1 (the rounding of
+    :func:`bank_from_templates`) and their reference offsets by less than 1/256 sample (the
+    resolution of a peak position): the filter then gives the same output and the depth stage
+    the same depth with either. Template selection (spec section 4) only allows a run of
+    equal bins to be dropped at either end: template 0 keeps serving the first ``lead`` bins
+    if they equal it (``bin_offset`` grows by ``lead * bin_len``), and the last template
+    serves every bin past the last distinct one (``k`` is capped at ``K - 1``).
+
+    Returns
+    -------
+    keep : list of int
+        Indices of the templates kept, in order (``[0]`` alone: the fixed filter).
+    lead : int
+        Bins dropped after template 0.
+    """
+    c = bank.coefs.astype(np.int64)
+    ref = bank.ref_offsets
+
+    def equal(a, b):
+        return np.abs(c[a] - c[b]).max() <= 1 and abs(ref[a] - ref[b]) < 1 / 256
+
+    lead = 0
+    while lead + 1 < bank.K and equal(0, lead + 1):
+        lead += 1
+    last = bank.K - 1
+    while last > lead + 1 and equal(last, last - 1):
+        last -= 1
+    return [0, *range(lead + 1, last + 1)], lead
 
 
 def _write_atomic(path: Path, text: str) -> None:

@@ -161,9 +161,14 @@ class TestSceneBank:
 
         # 8 mg/L of sediment: no packet comes back from the deeper bins
         turbid = dataclasses.replace(preset("seed000"), sediment_mg_l=8.0)
-        sb = coeffs.scene_bank(turbid, n_templates=8)
+        sb = coeffs.scene_bank(turbid, n_templates=8, merge_equal=False)
         np.testing.assert_array_equal(sb.bank.coefs[-1], sb.bank.coefs[-2])
         assert len({row.tobytes() for row in sb.bank.coefs}) > 2
+        # merged, the deepest return that came back serves every bin past it
+        merged = coeffs.scene_bank(turbid, n_templates=8)
+        assert 2 < merged.bank.K < 8 and merged.bin_offset == sb.bin_offset
+        np.testing.assert_array_equal(merged.bank.coefs, sb.bank.coefs[:merged.bank.K])
+        np.testing.assert_array_equal(merged.bank.coefs[-1], sb.bank.coefs[-1])
 
     def test_water_that_returns_nothing_gets_the_pulse_everywhere(self):
         import dataclasses
@@ -171,10 +176,11 @@ class TestSceneBank:
         from sim.scene import preset
 
         mud = dataclasses.replace(preset("seed000"), sediment_mg_l=300.0)
-        sb = coeffs.scene_bank(mud, n_templates=4)
+        sb = coeffs.scene_bank(mud, n_templates=4, merge_equal=False)
         c = sb.bank.coefs.astype(np.int64)
         # the same Gaussian, sampled on the Monte Carlo time grid and put back on the taps
         assert np.abs(c[1:] - c[0]).max() <= 0.01 * c[0].max()
+        assert coeffs.scene_bank(mud, n_templates=4).bank.K == 1  # equal: merged
 
     def test_water_the_scene_says_does_not_stretch_gets_the_pulse_everywhere(self):
         import dataclasses
@@ -185,11 +191,17 @@ class TestSceneBank:
         # a tolerance no stretching reaches: the simulator renders the bottom as the pulse
         flat = dataclasses.replace(preset("seed000"), fidelity_tolerance_m=10.0)
         assert resolve_fidelity(flat) == "analytic"
-        sb = coeffs.scene_bank(flat, n_templates=4, n_taps=48)
+        sb = coeffs.scene_bank(flat, n_templates=4, n_taps=48, merge_equal=False)
         c = sb.bank.coefs.astype(np.int64)
         assert np.abs(c[1:] - c[0]).max() <= 1
         np.testing.assert_allclose(sb.bank.ref_offsets, 23.5)
         np.testing.assert_allclose(sb.coverage, 1.0, atol=1e-6)
+        # equal templates are merged by default: the pulse alone, the fixed filter
+        merged = coeffs.scene_bank(flat, n_templates=4, n_taps=48)
+        assert merged.bank.K == 1 and merged.templates.shape == (1, 48)
+        np.testing.assert_array_equal(merged.bank.coefs[0], sb.bank.coefs[0])
+        assert merged.bin_offset == sb.bin_offset + 3 * sb.bin_len
+        assert (merged.min_thr, merged.out_shift) == (sb.min_thr, sb.out_shift)
 
     def test_a_stretched_scene_gets_its_laws_returns(self):
         import dataclasses
@@ -268,3 +280,38 @@ class TestDemo:
 
         assert main(["demo", "--depths", "5,x"]) == 2
         assert "--depths must be comma-separated numbers of metres" in capsys.readouterr().err
+
+
+class TestDistinctTemplates:
+    """``distinct_templates``: equal bins dropped where template selection allows it."""
+
+    @staticmethod
+    def bank(rows, ref=None):
+        base = templates(K=3, L=16)
+        t = np.stack([base[r] for r in rows])
+        b = coeffs.bank_from_templates(t)
+        return Bank(b.coefs, ref if ref is not None else np.full(len(rows), 5.0))
+
+    @pytest.mark.parametrize("rows, keep, lead", [
+        ([0, 0, 1, 2, 2, 2], [0, 2, 3], 1),   # a lead run and a trailing run
+        ([0, 1, 1, 2], [0, 1, 2, 3], 0),      # a run in the middle stays (bins are uniform)
+        ([0, 0, 0], [0], 2),                  # all equal: the fixed filter
+        ([0, 1, 2], [0, 1, 2], 0),
+        ([0], [0], 0),
+        ([0, 1, 1], [0, 1], 0),
+    ])
+    def test_runs(self, rows, keep, lead):
+        assert coeffs.distinct_templates(self.bank(rows)) == (keep, lead)
+
+    def test_one_lsb_is_rounding_and_two_are_not(self):
+        b = self.bank([0, 0])
+        c = b.coefs.copy()
+        c[1, 3] += 1
+        assert coeffs.distinct_templates(Bank(c, b.ref_offsets)) == ([0], 1)
+        c[1, 3] += 1
+        assert coeffs.distinct_templates(Bank(c, b.ref_offsets)) == ([0, 1], 0)
+
+    def test_a_different_reference_offset_is_a_different_template(self):
+        # the same taps read at another event time give another depth
+        assert coeffs.distinct_templates(self.bank([0, 0], ref=[5.0, 5.5])) == ([0, 1], 0)
+        assert coeffs.distinct_templates(self.bank([0, 0], ref=[5.0, 5.001])) == ([0], 1)

@@ -499,3 +499,33 @@ def test_a_noise_bump_before_the_surface_is_not_the_surface():
     m._cfg = m._cfg.replace(min_surf=0)  # the floor off: the bump is the surface again
     e0 = m.estimate(shots)
     assert e0.detected[86] and abs(e0.depth_m[86] - 16.0) > 10
+
+
+def test_a_bottom_at_a_switch_between_equal_templates_is_detected():
+    """The unstretched side study at 3 m: the bottom's filtered peak sits on the bank's first
+    switch (``s + bin_offset``), and the detector refuses a peak whose neighbours straddle
+    one (spec section 5). Every bin of this scene's bank holds the pulse, so the switch was
+    a blind band for nothing (0 of the shots found); the bank without its equal templates is
+    the fixed filter and finds them all."""
+    import dataclasses
+
+    from model.accuracy import DEPTHS_FULL, study_base, unstretched_sweep
+
+    base = study_base(DEPTHS_FULL)
+    flat = unstretched_sweep(base, [3.0], (), 1).points[0].scene
+    shots = make_shots(flat, 3.0, 30, seed=7)
+    m = get_method("adaptive_mf")()
+    m.prepare(setup_for(flat))
+    assert m._sb.bank.K == 1
+    e = m.estimate(shots)
+    assert e.detected.all() and np.all(np.abs(e.depth_m - 3.0) < 0.02)
+    from firmware_host.coeffs import scene_bank
+    from model.methods._chain import X_RANGE
+
+    full = scene_bank(flat, n_templates=m.n_templates, n_taps=m.taps, x_range=X_RANGE,
+                      merge_equal=False)
+    assert full.bank.K == m.n_templates
+    m._sb = dataclasses.replace(m._sb, bank=full.bank)
+    m._cfg = m._cfg.replace(bin_offset=full.bin_offset, bin_len=full.bin_len)
+    m._walk = m._calibrated = None  # the walk table was calibrated for the merged bank
+    assert m.estimate(shots).detected.sum() <= 3  # the switch's blind band
