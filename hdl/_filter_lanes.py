@@ -37,6 +37,7 @@ from .matched_filter import (
     N_WIDTH,
     TAG_WIDTH,
     RegisteredMultiplier,
+    _coef_chain,
     _flow_control,
     _round_saturate,
     _saturation_bounds,
@@ -86,7 +87,13 @@ def elaborate(mf, platform) -> Module:
     # flow control as the one-lane design: a free-running pipeline into an output buffer of
     # `capacity` beats, i.ready registered
     capacity = lat + 1
-    accept, _take, accept_dl = _flow_control(m, mf, capacity)
+    # The coefficient writes go down a chain of registered links, one per lane and group of
+    # taps (`_coef_chain`, as the one-lane design): written straight from `coef`, the 96
+    # memories of 12 lanes x 8 taps shared one write bus, and the 12 x 8 join's worst path was
+    # a route of 12.7 ns into one of their write ports (18.0 ns in all, 55.5 MHz).
+    groups = min(K_MAX, -(-T // 4))
+    wlink, whold = _coef_chain(m, mf.coef, P * groups, read_after=1)
+    accept, _take, accept_dl = _flow_control(m, mf, capacity, hold_nx=whold)
 
     # ---- frame state ----
     n = Signal(N_WIDTH)  # index of the next beat's lane-0 sample
@@ -230,7 +237,6 @@ def elaborate(mf, platform) -> Module:
     # template into a RegisteredMultiplier. The lane's template register is copied per group
     # of 4 taps (copy g holds k ^ g, its memories store h[k][j] at k ^ g, so the copies are
     # not merged), letting each memory sit by its DSP as in the one-lane design ----
-    groups = min(K_MAX, -(-T // 4))
     accs = []
     for p in range(P):
         k_copy = [Signal(_K_SHAPE, name=f"k{p}_copy{g}") for g in range(groups)]
@@ -244,10 +250,11 @@ def elaborate(mf, platform) -> Module:
             rp = mem.read_port(domain="comb")
             mul = m.submodules[f"mul{p}_{j}"] = RegisteredMultiplier(STITCHED,
                                                                      signed(COEF_WIDTH))
+            lk = wlink[p * groups + g]
             m.d.comb += [
-                wp.addr.eq(mf.coef.payload.addr[_J_BITS:] ^ g),
-                wp.data.eq(mf.coef.payload.data),
-                wp.en.eq(mf.coef.valid & (mf.coef.payload.addr[:_J_BITS] == j)),
+                wp.addr.eq(lk.addr[_J_BITS:] ^ g),
+                wp.data.eq(lk.data),
+                wp.en.eq(lk.valid & (lk.addr[:_J_BITS] == j)),
                 rp.addr.eq(k_copy[g]),
                 mul.ce.eq(1),
             ]

@@ -268,11 +268,15 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
     m.d.sync += y.eq(Mux(over, _Y_HI, Mux(under, _Y_LO, t_low[1:])))
 
 
-def _coef_chain(m: Module, coef, groups: int):
+def _coef_chain(m: Module, coef, groups: int, read_after: int = 2):
     """The coefficient writes as a chain of ``groups`` registered links, link ``g`` a clock
     after link ``g - 1`` (link 0 a clock after ``coef``), and the hold that keeps samples out
     until a write has passed the last link. Returns ``(links, hold_nx)``: samples are held off
     at the clock after one where ``hold_nx`` is high.
+
+    ``read_after``: a sample accepted at an edge reads its coefficients in the
+    ``read_after``-th clock after it (2 in the one-lane design, whose template copies come
+    from the register ``k``; 1 in the lanes design, whose copies load as the sample is taken).
     """
     # One write bus to all the coefficient memories was their only wide shared net, and the
     # placer kept the 64 of them together by it, far from their DSP blocks (4.6 ns of route
@@ -285,11 +289,12 @@ def _coef_chain(m: Module, coef, groups: int):
                  links[0].addr.eq(coef.payload.addr), links[0].data.eq(coef.payload.data)]
     m.d.sync += [links[g].eq(links[g - 1]) for g in range(1, groups)]
     # A write taken at edge e reaches the last group's memory at edge e + groups; a sample
-    # reads its coefficients in the second clock after it is accepted, so none is accepted at
-    # edges e + 1 .. e + groups - 2 (edge e itself is held off by coef.valid).
-    left = Signal(range(groups))
+    # reads its coefficients in the read_after-th clock after it is accepted (it sees the
+    # writes up to the edge that clock starts at), so none is accepted at edges e + 1 .. e +
+    # groups - read_after (edge e itself is held off by coef.valid): `left` counts them down.
+    left = Signal(range(max(2, groups)))
     with m.If(coef.valid):
-        m.d.sync += left.eq(groups - 2)
+        m.d.sync += left.eq(max(0, groups - read_after))
     with m.Elif(left != 0):
         m.d.sync += left.eq(left - 1)
     return links, coef.valid | (left > 1)

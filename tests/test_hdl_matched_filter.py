@@ -51,9 +51,16 @@ class Case:
 
 
 def coef_source(bank: Bank) -> Source:
-    k, j = np.meshgrid(np.arange(bank.K), np.arange(bank.L), indexing="ij")
-    return Source(COEF_WRITE, {"addr": (k * L_MAX + j).ravel(),
-                               "data": bank.coefs.astype(np.int64).ravel()}, PLAIN)
+    """The bank's writes, the last template first, so that the last write is tap ``L - 1`` of
+    template 0; before them all that tap is written with another value. The first sample,
+    offered all along, is taken as soon as the filter lets it after the last write, and reads
+    template 0 at once: it sees the right tap only if the write chain's hold is long enough."""
+    k, j = np.meshgrid(np.arange(bank.K)[::-1], np.arange(bank.L), indexing="ij")
+    last = int(bank.coefs[0, -1])
+    other = last ^ 0x5555 if last >= 0 else ~last
+    return Source(COEF_WRITE, {"addr": np.append([bank.L - 1], (k * L_MAX + j).ravel()),
+                               "data": np.append([other], bank.coefs[::-1].astype(np.int64))},
+                  PLAIN)
 
 
 def sample_source(frames, pattern) -> Source:

@@ -198,6 +198,22 @@ class TestAmaranthSim:
         res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max), **tr)
         check(per_sample(res, lanes), case)
 
+    @pytest.mark.parametrize("lanes, taps_max", [(3, 8), (2, 16)])
+    def test_the_last_write_reaches_the_last_lane_first(self, lanes, taps_max):
+        """The writes go down a chain of a link per lane and group of taps; the first sample,
+        taken as soon as the filter lets it after the last write (``coef_source``: tap ``L - 1``
+        of template 0, written before with another value), reads that tap in its last lane,
+        whose link is the chain's last: no output saturates, so a stale tap shows."""
+        rng = np.random.default_rng(lanes)
+        bank = Bank(rng.integers(-3000, 3000, (2, taps_max)).astype(np.int16))
+        frames = random_frames(rng, [40, 3], rails=0)
+        cfg = Config(out_shift=12, bin_offset=24, bin_len=lanes + 1)
+        case = LaneCase(bank, cfg, frames, [5, -1], banks=[bank] * 2)
+        res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max),
+                       **lane_traffic(case, lanes, taps_max))
+        assert np.abs(case.expected()[0]).max() < (1 << 23) - 1
+        check(per_sample(res, lanes), case)
+
     @pytest.mark.parametrize("s, used", [(24, True), (23, False)])
     def test_surface_apply(self, s, used):
         """A surface given ahead is taken the clock after the frame's first beat and acts from
