@@ -10,7 +10,8 @@ HDF5 layout (``albcap depth`` reads it)::
     /frames        vlen uint8 (N,)    each frame's bytes exactly as received (bit-exact)
     /header/NAME   int64 (N,)         every frame-header field (``model.layouts.FRAME_HEADER``)
     /peaks/NAME    int64 (N, 2)       slot 0 surface, slot 1 bottom: ``found``, ``template``,
-                                      ``position_q8``, ``amplitude``, ``noise`` (peak frames)
+                                      ``position_q8``, ``amplitude``, ``noise``, ``rise``
+                                      (peak frames)
     attributes     port, frames, lost_frames, device_dropped, registers (JSON), parser counters
 """
 
@@ -32,7 +33,7 @@ from .protocol import PacketParser
 __all__ = ["CaptureResult", "capture_frames", "count_lost", "decode_raw", "peak_table",
            "read_capture", "write_capture"]
 
-_PEAK_FIELDS = ("found", "template", "position_q8", "amplitude", "noise")
+_PEAK_FIELDS = ("found", "template", "position_q8", "amplitude", "noise", "rise")
 
 
 @dataclass

@@ -33,7 +33,7 @@ from amaranth.lib import data
 from ._peak_common import _POS, thr_as_key
 from ._primitives import _delay, _delay_to, _reg, _sub_sign
 from .matched_filter import TAG_WIDTH
-from .peak_detect import _KEY, _Y, record_layout
+from .peak_detect import _KEY, _RISE, _Y, record_layout
 
 __all__ = ["FrameEnd", "decide"]
 
@@ -391,6 +391,15 @@ def _bottom(m, cfg, L, rec, bt, last_c, long_c, vd, win, node):
     recs = Array(_lane_record(m, rec, bt, j, bt.base + (j - 1)).as_value() for j in range(L))
     c_take = _reg(m, take, 1, "c_take")
     c_rec = _reg(m, recs[win.idx], rec, "c_rec")
+    # the record's rise: rule 2's key (the winner's, registered beside c_rec), saturated to
+    # u16 from a register (the key's high bits) at C, not before the tree's compare
+    rise_k = _reg(m, Mux(cfg.bottom_rule == 2, win.key, 0), _KEY, "c_rise_key")
+    w = _RISE.width
+    c_rise = Signal(_RISE, name="c_rise")
+    m.d.comb += c_rise.eq(Mux(rise_k[w:].any(), (1 << w) - 1, rise_k[:w]))
+    c_full = Signal(rec, name="c_full")
+    m.d.comb += [c_full.eq(c_rec), c_full.rise.eq(c_rise)]
+    c_rec = c_full
     # C: the bottom's record; at the frame's last beat, the snapshot for the divider
     brec, b_fin = Signal(rec), Signal(rec)
     end_valid, end_long = Signal(), Signal()

@@ -69,18 +69,20 @@ PEAK_RESULT = data.StructLayout({
 
 _Y = signed(OUT_WIDTH)
 _KEY = signed(OUT_WIDTH + 2)  # y (rule 1) or a rise y - vmin (rule 2)
+_RISE = unsigned(16)  # the record's rise: rule 2's key, saturated
 
 
 def record_layout(k_shape) -> data.StructLayout:
-    """A peak held by the decision: ``found``, its sample ``n``, ``a, b, c = y[n-1..n+1]``
-    and its template ``k``."""
-    return data.StructLayout({"found": 1, "n": N_WIDTH, "a": _Y, "b": _Y, "c": _Y, "k": k_shape})
+    """A peak held by the decision: ``found``, its sample ``n``, ``a, b, c = y[n-1..n+1]``,
+    its template ``k`` and (a bottom under rule 2) its ``rise``, saturated to u16."""
+    return data.StructLayout({"found": 1, "n": N_WIDTH, "a": _Y, "b": _Y, "c": _Y, "k": k_shape,
+                              "rise": _RISE})
 
 
 def divider_layout(k_shape) -> data.StructLayout:
     """One peak in the sub-sample divider: what the record needs plus ``b - a``, ``b - c``,
     ``den`` and ``-den``, the (scaled) remainder and the quotient bits."""
-    return data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": k_shape,
+    return data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": k_shape, "rise": _RISE,
                               "bma": signed(OUT_WIDTH + 1), "bmc": signed(OUT_WIDTH + 1),
                               "den": signed(OUT_WIDTH + 2),
                               "nden": signed(OUT_WIDTH + 2),
@@ -111,7 +113,8 @@ def load_divider(m, fins, recs, long, start, mu):
     for fin, r in zip(fins, recs, strict=True):
         with m.If(start):
             m.d.sync += [fin.found.eq(r.found & long), fin.n.eq(r.n), fin.b.eq(r.b),
-                         fin.k.eq(r.k), fin.bma.eq(r.b - r.a), fin.bmc.eq(r.b - r.c)]
+                         fin.k.eq(r.k), fin.rise.eq(r.rise), fin.bma.eq(r.b - r.a),
+                         fin.bmc.eq(r.b - r.c)]
         with m.If(loading):
             m.d.sync += [fin.q.eq(0), fin.den.eq(fin.bma + fin.bmc), fin.amp.eq(fin.b - mu),
                          fin.pos0.eq((fin.n << 8) - 128)]
@@ -186,6 +189,7 @@ def drive_result(m, o, o_valid, q_done, fin_mu, fin_noise, fin_thr, fins):
                 out.position_q8.eq(Mux(fin.found, fin.pos0 + fin.q, 0)),
                 out.amplitude.eq(Mux(fin.found, Mux(over, Mux(amp[-1], lo, hi), amp), 0)),
                 out.noise.eq(Mux(fin.found, fin_noise, 0)),
+                out.rise.eq(Mux(fin.found, fin.rise, 0)),
             ]
 
 

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .peak_detect import RISE_MAX
+
 __all__ = ["C0_M_PER_S", "N_WATER", "DepthResult", "confident_peaks", "depth_from_peaks",
            "event_time_s",
            "refracted_angle_rad", "walk_correction"]
@@ -156,19 +158,22 @@ def depth_from_peaks(surface_found, surface_q8, surface_template, bottom_found, 
 
 
 def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
-                    confident_q4: int, noise_floor: int = 0) -> np.ndarray:
+                    confident_q4: int, noise_floor: int = 0, bottom_rise=None) -> np.ndarray:
     """Which depths are *confident*: both peaks stand ``confident_q4 / 16`` times the noise
-    above the baseline, ``amplitude > max(min_thr, (confident_q4 * max(noise, noise_floor))
-    >> 4)``.
+    out, ``strength > max(min_thr, (confident_q4 * max(noise, noise_floor)) >> 4)``, the
+    surface's strength its amplitude and the bottom's its rise when the records carry one
+    (``bottom_rule = 2``), else its amplitude.
 
-    The detector's own amplitude test (spec section 5) with a stricter factor, applied after
-    the fact: a record's ``amplitude`` is ``y - mu`` and its ``noise`` the frame's. A survey
-    detects at a lower ``k_thr_q4`` (deeper reach) and calls confident only the depths that
-    pass ``confident_q4`` too; the others are *weak*: kept and flagged, held to no error bound.
+    The detector's own tests (spec section 5) with a stricter factor, applied after the fact:
+    a record's ``amplitude`` is ``y - mu``, its ``rise`` ``y - v`` (above the running minimum
+    since the surface) and its ``noise`` the frame's. A survey detects at a lower
+    ``k_thr_q4`` (deeper reach) and calls confident only the depths that pass
+    ``confident_q4`` too; the others are *weak*: kept and flagged, held to no error bound.
     The amplitude counts from the lead-in baseline, so under the surface the water column's
-    return lifts it (the detector's rise test for bottom rule 2 is not in the records); the
-    factor is therefore set above the false bottoms measured on water without a bottom
-    (``firmware_host.coeffs.CONFIDENT_K_THR_Q4``). A frame's noise is measured on a short
+    return lifts it: a 3-sigma bump on a column still 7 sigma high stood 12.9 x the noise
+    floor by its amplitude and 6.4 x by its rise (an 8-tap filter, 13 m down, the bottom at 40
+    m past reach). Hence the rise for the bottom; a rise saturated in its u16 field counts as
+    the amplitude if that is larger. A frame's noise is measured on a short
     window of correlated samples and can read far below the noise that is always there; a
     reading under ``noise_floor`` is taken as that floor (a frame whose noise read 21 against
     a median of 29 gave a confident false bottom 16 m off at 231 LSB, 11 x its reading).
@@ -186,6 +191,9 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
     noise_floor : int
         The noise reading of the noise floor alone, filter LSB
         (``firmware_host.coeffs.SceneBank.floor_noise``; 0: none).
+    bottom_rise : int array, shape (B,), optional
+        The bottom records' ``rise`` (filter LSB). Give it only for frames taken with
+        ``bottom_rule = 2``: under the other rules the records carry 0.
 
     Returns
     -------
@@ -197,5 +205,8 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
         raise ValueError(f"noise_floor must be an integer in 0..16777215, not {noise_floor!r}")
     noise = np.maximum(np.asarray(noise, dtype=np.int64), int(noise_floor))
     thr = np.maximum(int(min_thr), (confident_q4 * noise) >> 4)
-    return ((np.asarray(surface_amplitude, dtype=np.int64) > thr)
-            & (np.asarray(bottom_amplitude, dtype=np.int64) > thr))
+    bottom = np.asarray(bottom_amplitude, dtype=np.int64)
+    if bottom_rise is not None:
+        rise = np.asarray(bottom_rise, dtype=np.int64)
+        bottom = np.where(rise >= RISE_MAX, np.maximum(rise, bottom), rise)
+    return (np.asarray(surface_amplitude, dtype=np.int64) > thr) & (bottom > thr)

@@ -65,12 +65,13 @@ def filter_and_detect(x, bank: Bank, cfg: Config) -> tuple[np.ndarray, PeakResul
         found = col[f"{kind}_found"].astype(bool)
         peaks.append(Peaks(found=found, n=col[f"{kind}_n"],
                            position_q8=col[f"{kind}_q8"], amplitude=col[f"{kind}_amp"],
-                           template=col[f"{kind}_k"]))
+                           template=col[f"{kind}_k"],
+                           rise=col["b_rise"] if kind == "b" else np.zeros_like(found, np.int64)))
     return y.reshape(x.shape), PeakResult(col["mu"], col["noise"], col["thr"], *peaks)
 
 
 _KERNEL_COLUMNS = ("mu", "noise", "thr", "s_n", "s_q8", "s_amp", "s_k", "s_found",
-                   "b_n", "b_q8", "b_amp", "b_k", "b_found")
+                   "b_n", "b_q8", "b_amp", "b_k", "b_found", "b_rise")
 
 
 def filter_and_detect_reference(x, bank: Bank, cfg: Config) -> tuple[np.ndarray, PeakResult]:
@@ -95,7 +96,7 @@ def filter_and_detect_reference(x, bank: Bank, cfg: Config) -> tuple[np.ndarray,
     if not results:
         return y, empty_result(x.shape[:-1], cfg)
     peaks = [Peaks(*(stack(lambda r, k=k, f=f: getattr(getattr(r, k), f)) for f in
-                     ("found", "n", "position_q8", "amplitude", "template")))
+                     ("found", "n", "position_q8", "amplitude", "template", "rise")))
              for k in ("surface", "bottom")]
     return y, PeakResult(stack(lambda r: r.mu), stack(lambda r: r.noise),
                          stack(lambda r: r.threshold), *peaks)

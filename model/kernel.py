@@ -26,6 +26,7 @@ __all__ = ["filter_detect_frames"]
 _Y_HI = (1 << 23) - 1
 _Y_LO = -(1 << 23)
 _NOISE_MAX = (1 << 24) - 1
+_RISE_MAX = (1 << 16) - 1
 #: Samples filtered per run while no surface is known (then runs end at bin boundaries).
 _RUN = 256
 
@@ -177,6 +178,8 @@ def _frames(x, h, regs, y, out):
             out[f, base + 2] = _sat24(b_ - mu)
             out[f, base + 3] = _template(p, s, K, bin_offset, bin_len)
             out[f, base + 4] = 1
+        if b >= 0 and bottom_rule == 2:  # rule 2's key is the rise (u16 in the record)
+            out[f, 13] = best if best < _RISE_MAX else _RISE_MAX
 
 
 def filter_detect_frames(x: np.ndarray, coefs: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray]:
@@ -193,13 +196,13 @@ def filter_detect_frames(x: np.ndarray, coefs: np.ndarray, cfg) -> tuple[np.ndar
     -------
     y : int32 ndarray, shape (F, N)
         Filter output.
-    out : int64 ndarray, shape (F, 13)
+    out : int64 ndarray, shape (F, 14)
         Per frame: ``mu, noise, thr``, then for the surface and the bottom: ``n`` (-1 if not
-        found), ``position_q8, amplitude, template, found``.
+        found), ``position_q8, amplitude, template, found``; then the bottom's ``rise``.
     """
     regs = np.array([cfg.out_shift, cfg.bin_offset, cfg.bin_len, cfg.noise_log2, cfg.k_thr_q4,
                      cfg.min_thr, cfg.min_sep, cfg.bottom_rule, cfg.min_surf], dtype=np.int64)
     y = np.empty(x.shape, np.int32)
-    out = np.zeros((x.shape[0], 13), np.int64)
+    out = np.zeros((x.shape[0], 14), np.int64)
     _frames(np.ascontiguousarray(x), coefs.astype(np.float64), regs, y, out)
     return y, out

@@ -183,7 +183,8 @@ PEAK_RECORD = Layout(
     [
         ("kind", 1, False, "`PeakKind`: 1 surface, 2 bottom"),
         ("template", 1, False, "matched-filter template in use at the peak sample"),
-        ("reserved", 2, False, "0"),
+        ("rise", 2, False, "bottom, `bottom_rule` 2: its rise `y[n] - v[n]` above the running "
+                           "minimum since the surface, saturated to 65535; 0 otherwise"),
         ("position_q8", 4, False, "peak position in 1/256 sample from the first gate sample "
                                   "(256 n + q, q in -128..128)"),
         ("amplitude", 4, True, "filter output at the peak minus the baseline `mu`, "

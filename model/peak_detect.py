@@ -27,6 +27,7 @@ from .registers import Config
 
 __all__ = [
     "NOISE_MAX",
+    "RISE_MAX",
     "PeakDetectStream",
     "PeakResult",
     "Peaks",
@@ -44,8 +45,10 @@ class Peaks:
     """One kind of peak (surface or bottom) for every frame; arrays of shape (...).
 
     ``found`` bool; ``n`` sample index (``-1`` if not found); ``position_q8`` ``256 n + q`` in
-    1/256 sample; ``amplitude`` ``sat_24(y[n] - mu)`` (filter LSB); ``template`` ``k(n)``.
-    Absent peaks have ``n = -1`` and zeros elsewhere.
+    1/256 sample; ``amplitude`` ``sat_24(y[n] - mu)`` (filter LSB); ``template`` ``k(n)``;
+    ``rise`` (a bottom under ``bottom_rule`` 2) ``y[n] - min(y[s..n])``, the key that chose
+    it, saturated to 65535 (filter LSB; 0 for the surface and the other rules). Absent peaks
+    have ``n = -1`` and zeros elsewhere.
     """
 
     found: np.ndarray
@@ -53,6 +56,7 @@ class Peaks:
     position_q8: np.ndarray
     amplitude: np.ndarray
     template: np.ndarray
+    rise: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -80,7 +84,7 @@ class PeakResult:
         out = []
         for kind, p in ((PeakKind.SURFACE, self.surface), (PeakKind.BOTTOM, self.bottom)):
             rec = PEAK_RECORD.pack(kind=np.where(p.found, int(kind), 0), template=p.template,
-                                   reserved=0, position_q8=p.position_q8,
+                                   rise=p.rise, position_q8=p.position_q8,
                                    amplitude=p.amplitude, noise=np.where(p.found, self.noise, 0))
             out.append(rec)
         count = self.surface.found.astype(np.int64) + self.bottom.found.astype(np.int64)
@@ -108,13 +112,18 @@ def thresholds(mu_sum, noise_sum, cfg):
     return mu, noise, thr
 
 
-def make_peaks(found, n, abc, mu, template) -> Peaks:
+#: The record's ``rise`` saturates here (u16 field).
+RISE_MAX = (1 << 16) - 1
+
+
+def make_peaks(found, n, abc, mu, template, rise=0) -> Peaks:
     a, b, c = abc
     q = parabola_q8(a, b, c)
     return Peaks(found=found, n=np.where(found, n, -1),
                  position_q8=np.where(found, 256 * n + q, 0),
                  amplitude=np.where(found, saturate(b - mu, OUT_WIDTH), 0),
-                 template=np.where(found, template, 0).astype(np.int64))
+                 template=np.where(found, template, 0).astype(np.int64),
+                 rise=np.where(found, np.minimum(rise, RISE_MAX), 0).astype(np.int64))
 
 
 def _check_inputs(y, warmup, cfg, templates):
@@ -138,7 +147,7 @@ def _check_inputs(y, warmup, cfg, templates):
 def empty_result(shape, cfg) -> PeakResult:
     """A frame too short for any peak: ``mu = noise = 0``, threshold from ``noise = 0``."""
     z = np.zeros(shape, dtype=np.int64)
-    none = Peaks(np.zeros(shape, bool), z - 1, z, z, z)
+    none = Peaks(np.zeros(shape, bool), z - 1, z, z, z, z)
     return PeakResult(z, z, np.full(shape, max(cfg.min_thr, 0), np.int64), none, none)
 
 
@@ -171,7 +180,7 @@ def peak_detect(y, warmup: int, cfg: Config, templates=None) -> PeakResult:
     fy = y.reshape(-1, N)
     ft = None if templates is None else templates.reshape(-1, N)
     F = fy.shape[0]
-    cols = {k: np.zeros(F, np.int64) for k in ("mu", "noise", "thr", "s", "b")}
+    cols = {k: np.zeros(F, np.int64) for k in ("mu", "noise", "thr", "s", "b", "rise")}
     fs, fb = np.zeros(F, bool), np.zeros(F, bool)
     n0 = W + 2 * P  # first candidate sample
 
@@ -188,9 +197,9 @@ def peak_detect(y, warmup: int, cfg: Config, templates=None) -> PeakResult:
             r, c = r[keep], c[keep]
         surf_ok = yy[r, c] - mu[r] > cfg.min_surf
         found_s, s_n, (r, c) = first_and_rest(r, c, len(yy), cfg.min_sep, surf_ok)
-        found_b, b_n = pick_bottom(r, c, yy, len(yy), cfg.bottom_rule, s_n, thr)
+        found_b, b_n, rise = pick_bottom(r, c, yy, len(yy), cfg.bottom_rule, s_n, thr)
         cols["mu"][lo:hi], cols["noise"][lo:hi], cols["thr"][lo:hi] = mu, noise, thr
-        cols["s"][lo:hi], cols["b"][lo:hi] = s_n, b_n
+        cols["s"][lo:hi], cols["b"][lo:hi], cols["rise"][lo:hi] = s_n, b_n, rise
         fs[lo:hi], fb[lo:hi] = found_s, found_b
 
     map_chunks(work, F, max(1, (1 << 15) // N))
@@ -248,16 +257,18 @@ def pick_bottom(r, c, v, n_rows, rule, s=None, thr=None):
     """Bottom per row among candidates ``(r, c)`` (row-major): the latest (``rule`` 0), the
     largest ``v[r, c]`` (1) or, among those rising more than ``thr[r]`` above
     ``min(v[r, s[r]..c])``, the largest rise (2); earliest on a tie. ``s`` and ``thr`` (R,)
-    are each row's surface and threshold, needed by rule 2. Returns ``found``, ``n`` (R,).
+    are each row's surface and threshold, needed by rule 2. Returns ``found``, ``n`` and
+    ``rise`` (the chosen bottom's rise under rule 2, else 0), each (R,).
     """
     found = np.zeros(n_rows, bool)
     n = np.zeros(n_rows, np.int64)
+    rise = np.zeros(n_rows, np.int64)
     if rule == 2 and len(r):
         key = v[r, c].astype(np.int64) - running_min_from(v, s)[r, c]
         ok = key > np.asarray(thr)[r]
         r, c, key = r[ok], c[ok], key[ok]
     if len(r) == 0:
-        return found, n
+        return found, n, rise
     if rule == 0:
         pick = np.flatnonzero(np.r_[r[1:] != r[:-1], True])
     else:
@@ -269,7 +280,9 @@ def pick_bottom(r, c, v, n_rows, rule, s=None, thr=None):
         pick = order[np.flatnonzero(np.r_[True, rs[1:] != rs[:-1]])]
     found[r[pick]] = True
     n[r[pick]] = c[pick]
-    return found, n
+    if rule == 2:
+        rise[r[pick]] = key[pick]
+    return found, n, rise
 
 
 def running_min_from(v, s) -> np.ndarray:
@@ -287,7 +300,7 @@ def _assemble(fy, ft, cols, fs, fb, shape) -> PeakResult:
         n = np.where(found, cols[key], 1)
         abc = [fy[rows, n + d].astype(np.int64) for d in (-1, 0, 1)]
         k = np.zeros(len(rows), np.int64) if ft is None else ft[rows, n].astype(np.int64)
-        p = make_peaks(found, n, abc, cols["mu"], k)
+        p = make_peaks(found, n, abc, cols["mu"], k, cols["rise"] if key == "b" else 0)
         peaks.append(Peaks(*(np.reshape(v, shape) for v in vars(p).values())))
     mu, noise, thr = (cols[k].reshape(shape) for k in ("mu", "noise", "thr"))
     return PeakResult(mu, noise, thr, *peaks)
@@ -303,7 +316,7 @@ def peak_detect_reference(y, warmup: int, cfg: Config, templates=None) -> PeakRe
     fy = y.reshape(-1, N).astype(np.int64)
     ft = None if templates is None else templates.reshape(-1, N)
     F = fy.shape[0]
-    cols = {k: np.zeros(F, np.int64) for k in ("mu", "noise", "thr", "s", "b")}
+    cols = {k: np.zeros(F, np.int64) for k in ("mu", "noise", "thr", "s", "b", "rise")}
     fs, fb = np.zeros(F, bool), np.zeros(F, bool)
     for f in range(F):
         v = fy[f]
@@ -329,7 +342,8 @@ def peak_detect_reference(y, warmup: int, cfg: Config, templates=None) -> PeakRe
                 else:  # rise above min(v[s..n]); argmax takes the earliest on a tie
                     rise = v[later] - np.minimum.accumulate(v[s0:])[later - s0]
                     if (rise > thr).any():
-                        cols["b"][f] = later[np.argmax(np.where(rise > thr, rise, -1))]
+                        i = np.argmax(np.where(rise > thr, rise, -1))
+                        cols["b"][f], cols["rise"][f] = later[i], rise[i]
                     else:
                         fb[f] = False
     return _assemble(y.reshape(-1, N), ft, cols, fs, fb, y.shape[:-1])
@@ -464,7 +478,9 @@ class PeakDetectStream:
             peaks = []
             for key in ("s", "b"):
                 found, rec = self._cand[key]
-                p = make_peaks(found, rec[:, 0], (rec[:, 1], rec[:, 2], rec[:, 3]), mu, rec[:, 4])
+                rise = self._best if key == "b" and cfg.bottom_rule == 2 else 0
+                p = make_peaks(found, rec[:, 0], (rec[:, 1], rec[:, 2], rec[:, 3]), mu, rec[:, 4],
+                               rise)
                 peaks.append(Peaks(*(np.reshape(v, shape) for v in vars(p).values())))
             result = PeakResult(mu.reshape(shape), noise.reshape(shape), thr.reshape(shape),
                                 *peaks)

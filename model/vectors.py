@@ -173,7 +173,7 @@ def _peak_cases(rng):
     y[2] = 2**23 - 1  # flat at the rail: no peaks
     cases = [_peak_case(f"rule{rule}", y, Config(bottom_rule=rule, noise_log2=5, k_thr_q4=128,
                                                  min_sep=12))
-             for rule in (0, 1)]
+             for rule in (0, 1, 2)]
     # the surface floor: a bump above the threshold 30 samples before half the surfaces, which
     # rule 0's frames take for their surface and this case's floor skips (the rail frame kept
     # at the rail: the bump would carry it past the s24 range)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-FIELDS = ("found", "n", "position_q8", "amplitude", "template")
+FIELDS = ("found", "n", "position_q8", "amplitude", "template", "rise")
 
 
 def assert_same(r1, r2):

@@ -96,3 +96,25 @@ def test_confident_peaks_counts_a_low_noise_reading_as_the_floor():
     assert floored.tolist() == [False, True, True]  # 290 at the floor; 400 read above it
     with pytest.raises(ValueError, match="noise_floor must be an integer in 0..16777215, not -2"):
         confident_peaks([1], [1], [1], min_thr=0, confident_q4=16, noise_floor=-2)
+
+
+def test_confident_peaks_reads_the_bottoms_rise_when_given():
+    """Under bottom rule 2 the bottom's strength is its rise above the running minimum since
+    the surface, not its amplitude above the lead-in baseline (which the water column lifts);
+    a rise saturated in its u16 field counts as the amplitude if that is larger."""
+    from model.depth import confident_peaks
+    from model.peak_detect import RISE_MAX
+
+    surf = [5000, 5000, 5000, 5000, 500_000]
+    amp = [644, 644, 300, 100_000, 100_000]
+    rise = [318, 501, 501, RISE_MAX, RISE_MAX]
+    noise = [50] * 5  # 10 x noise: 500
+    got = confident_peaks(surf, amp, noise, min_thr=270, confident_q4=160, bottom_rise=rise)
+    assert got.tolist() == [False, True, True, True, True]
+    by_amp = confident_peaks(surf, amp, noise, min_thr=270, confident_q4=160)
+    assert by_amp.tolist() == [True, True, False, True, True]
+    # a noise so high that 10 x of it passes the u16 field: the saturated rise defers to the
+    # amplitude
+    big = confident_peaks([10**7], [10**6], [10_000], min_thr=0, confident_q4=160,
+                          bottom_rise=[RISE_MAX])
+    assert big.tolist() == [True]

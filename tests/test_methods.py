@@ -529,3 +529,29 @@ def test_a_bottom_at_a_switch_between_equal_templates_is_detected():
     m._cfg = m._cfg.replace(bin_offset=full.bin_offset, bin_len=full.bin_len)
     m._walk = m._calibrated = None  # the walk table was calibrated for the merged bank
     assert m.estimate(shots).detected.sum() <= 3  # the switch's blind band
+
+
+def test_a_bump_on_the_water_column_past_reach_is_weak():
+    """The builds study's unstretched sweep at 40 m (past reach), shot 58, through an 8-tap
+    bank: rule 2 took a 3-sigma bump on the water column 13 m down. Its amplitude (from the
+    lead-in baseline, the column's level included) stood 12.9 x the noise floor and passed
+    the confidence factor (10 x); its rise, which its record now carries, is 6.4 x: weak."""
+    from model.accuracy import DEPTHS_FULL, chunk_seed, study_base, unstretched_sweep
+    from model.chain import run_chain
+    from model.depth import confident_peaks
+
+    base = study_base(DEPTHS_FULL)
+    i = DEPTHS_FULL.index(40.0)
+    flat = unstretched_sweep(base, DEPTHS_FULL, (), 1).points[i].scene
+    shots = make_shots(flat, 40.0, 250, seed=chunk_seed("unstretched", 0, i, 0))
+    m = get_method("adaptive_mf")(taps=8, min_bin_offset=17)
+    m.prepare(setup_for(flat))
+    e = m.estimate(shots)
+    assert e.detected[58] and abs(e.depth_m[58] - 13.0) < 0.1 and not e.confident[58]
+    assert not (e.confident & e.detected & (np.abs(e.depth_m - 40.0) > m.error_bound_m)).any()
+    p = run_chain(shots.adc[58:59], m._sb.bank, m._cfg.replace(gate_len=shots.adc.shape[-1])).peaks
+    by_amplitude = confident_peaks(p.surface.amplitude, p.bottom.amplitude, p.noise,
+                                   min_thr=m._cfg.min_thr, confident_q4=m._confident_q4,
+                                   noise_floor=m._sb.floor_noise)
+    assert by_amplitude[0]  # what the records without the rise called it
+    assert 0 < int(p.bottom.rise[0]) < int(p.bottom.amplitude[0]) // 2 + 10

@@ -242,10 +242,39 @@ class TestPeakDetect:
         assert fields["kind"].tolist() == [PeakKind.SURFACE, PeakKind.BOTTOM]
         assert fields["position_q8"].tolist() == [res.surface.position_q8[0],
                                                   res.bottom.position_q8[0]]
-        assert fields["template"].tolist() == [0, 0] and fields["reserved"].tolist() == [0, 0]
+        assert fields["template"].tolist() == [0, 0] and fields["rise"].tolist() == [0, 0]
         assert fields["amplitude"].tolist() == [res.surface.amplitude[0], res.bottom.amplitude[0]]
         assert (fields["noise"] == res.noise[0]).all()
         assert not rec[1, 1].any() and not rec[2].any()
+
+    @pytest.mark.parametrize("impl", ["vectorized", "reference", "stream"])
+    def test_rule_2_records_the_bottoms_rise(self, impl):
+        """Rule 2's bottom carries its rise above the running minimum since the surface (the
+        key that chose it), saturated to u16; the surface and rules 0 and 1 carry 0."""
+        y = np.stack([frame(120, 0, [(20, 900), (60, 500)]),
+                      frame(120, 0, [(20, 900), (70, 300), (90, 200)]),
+                      frame(120, 0, [(20, 900), (70, 200_000)])]).astype(np.int64)
+        y[0, 30:50] = 50  # the column between the peaks: the minimum since the surface is 0
+        y[1, 18:] += 40  # a lifted column: the minimum since the surface is 40
+        y = y.astype(np.int32)
+        cfg = Config(noise_log2=2, min_thr=100, min_sep=5, bottom_rule=2)
+
+        def run(c):
+            if impl == "stream":
+                st = PeakDetectStream(0, c, batch_shape=(3,))
+                st.feed(y)
+                return st.end_frame()
+            return (peak_detect if impl == "vectorized" else peak_detect_reference)(y, 0, c)
+
+        res = run(cfg)
+        assert res.bottom.n.tolist() == [60, 70, 70]
+        assert res.bottom.rise.tolist() == [500, 300, 65535]
+        assert res.bottom.amplitude.tolist() == [500, 340, 200_000]
+        assert res.surface.rise.tolist() == [0, 0, 0]
+        rec, _ = res.records()
+        assert PEAK_RECORD.unpack(rec[:, 1])["rise"].tolist() == [500, 300, 65535]
+        for rule in (0, 1):
+            assert not run(cfg.replace(bottom_rule=rule)).bottom.rise.any()
 
     @given(st.integers(0, 2**32 - 1))
     @SETTINGS

@@ -9,7 +9,8 @@ largest rise), then ``model.depth.depth_from_peaks`` with the bank's reference o
 range-walk table (``firmware_host.walk.calibrate_walk``: shots at random depths of the survey's
 scene, seeded apart from every evaluation, through the same chain; what ``albcap coeffs``
 stores in a bank file and ``albcap depth`` applies). A depth whose peaks do not both stand 10
-x noise above the baseline (``CONFIDENT_K_THR_Q4``) is *weak* (``Estimate.confident`` False;
+x noise out (the surface above the baseline, the bottom above the running minimum since the
+surface: its record's rise; ``CONFIDENT_K_THR_Q4``) is *weak* (``Estimate.confident`` False;
 ``model.depth.confident_peaks``), and so is a bottom found with a template the range-walk
 calibration could not measure (``firmware_host.walk.calibrated_templates``).
 """
@@ -127,7 +128,8 @@ class ChainMethod(Method):
         ok = dep.valid & np.isfinite(dep.depth_m) & (dep.depth_m > 0)
         sure = confident_peaks(p.surface.amplitude, p.bottom.amplitude, p.noise,
                                min_thr=cfg.min_thr, confident_q4=self._confident_q4,
-                               noise_floor=self._sb.floor_noise)
+                               noise_floor=self._sb.floor_noise,
+                               bottom_rise=p.bottom.rise if cfg.bottom_rule == 2 else None)
         if self._walk is not None:
             sure = sure & self._calibrated[np.clip(p.bottom.template, 0, len(self._calibrated) - 1)]
         ts = event_time_s(p.surface.position_q8, p.surface.template, self._sb.bank.ref_offsets,
