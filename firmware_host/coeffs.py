@@ -62,7 +62,7 @@ SURVEY_PRE_SURFACE_S = 200e-9
 #: filter's 3 m bound, and the on-chip RMSE over 1-26 m grew eightfold (``docs/methods.md``).
 SURVEY_K_THR_Q4 = 128
 #: A depth is *confident* when both its peaks stand this factor (10.0) of the noise out, the
-#: surface by its amplitude and the bottom by its rise (the records carry it under rule 2),
+#: surface by its amplitude and the bottom by its amplitude and its rise (under rule 2),
 #: ``> max(min_thr, (160 * noise) >> 4)``; the others are *weak*: reported, flagged, and held
 #: to no error bound (``model.depth.confident_peaks``). Measured on seed 000's scene at
 #: ``k_thr_q4 = 104``, by amplitude: the false bottoms of 1000 shots without one stood 6.6,

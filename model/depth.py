@@ -161,8 +161,8 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
                     confident_q4: int, noise_floor: int = 0, bottom_rise=None) -> np.ndarray:
     """Which depths are *confident*: both peaks stand ``confident_q4 / 16`` times the noise
     out, ``strength > max(min_thr, (confident_q4 * max(noise, noise_floor)) >> 4)``, the
-    surface's strength its amplitude and the bottom's its rise when the records carry one
-    (``bottom_rule = 2``), else its amplitude.
+    surface's strength its amplitude and the bottom's the smaller of its amplitude and its
+    rise when the records carry one (``bottom_rule = 2``), else its amplitude.
 
     The detector's own tests (spec section 5) with a stricter factor, applied after the fact:
     a record's ``amplitude`` is ``y - mu``, its ``rise`` ``y - v`` (above the running minimum
@@ -172,8 +172,11 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
     The amplitude counts from the lead-in baseline, so under the surface the water column's
     return lifts it: a 3-sigma bump on a column still 7 sigma high stood 12.9 x the noise
     floor by its amplitude and 6.4 x by its rise (an 8-tap filter, 13 m down, the bottom at 40
-    m past reach). Hence the rise for the bottom; a rise saturated in its u16 field counts as
-    the amplitude if that is larger. A frame's noise is measured on a short
+    m past reach). Hence the rise for the bottom, but not the rise alone: past the column,
+    where it has decayed under the baseline, a noise dip makes the rise exceed the amplitude,
+    and a false bottom of the Monte Carlo sweep at 23 m (8 taps) passed by its rise that its
+    amplitude kept weak. A bottom must stand out of both. A rise saturated in its u16 field
+    counts as the amplitude. A frame's noise is measured on a short
     window of correlated samples and can read far below the noise that is always there; a
     reading under ``noise_floor`` is taken as that floor (a frame whose noise read 21 against
     a median of 29 gave a confident false bottom 16 m off at 231 LSB, 11 x its reading).
@@ -208,5 +211,5 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
     bottom = np.asarray(bottom_amplitude, dtype=np.int64)
     if bottom_rise is not None:
         rise = np.asarray(bottom_rise, dtype=np.int64)
-        bottom = np.where(rise >= RISE_MAX, np.maximum(rise, bottom), rise)
+        bottom = np.where(rise >= RISE_MAX, bottom, np.minimum(rise, bottom))
     return (np.asarray(surface_amplitude, dtype=np.int64) > thr) & (bottom > thr)

@@ -99,9 +99,10 @@ def test_confident_peaks_counts_a_low_noise_reading_as_the_floor():
 
 
 def test_confident_peaks_reads_the_bottoms_rise_when_given():
-    """Under bottom rule 2 the bottom's strength is its rise above the running minimum since
-    the surface, not its amplitude above the lead-in baseline (which the water column lifts);
-    a rise saturated in its u16 field counts as the amplitude if that is larger."""
+    """Under bottom rule 2 the bottom's strength is the smaller of its rise above the running
+    minimum since the surface and its amplitude above the lead-in baseline (which the water
+    column lifts; a dip under the baseline lifts the rise); a rise saturated in its u16 field
+    counts as the amplitude."""
     from model.depth import confident_peaks
     from model.peak_detect import RISE_MAX
 
@@ -110,10 +111,10 @@ def test_confident_peaks_reads_the_bottoms_rise_when_given():
     rise = [318, 501, 501, RISE_MAX, RISE_MAX]
     noise = [50] * 5  # 10 x noise: 500
     got = confident_peaks(surf, amp, noise, min_thr=270, confident_q4=160, bottom_rise=rise)
-    assert got.tolist() == [False, True, True, True, True]
+    assert got.tolist() == [False, True, False, True, True]
     by_amp = confident_peaks(surf, amp, noise, min_thr=270, confident_q4=160)
     assert by_amp.tolist() == [True, True, False, True, True]
-    # a noise so high that 10 x of it passes the u16 field: the saturated rise defers to the
+    # a noise so high that 10 x of it passes the u16 field: a saturated rise defers to the
     # amplitude
     big = confident_peaks([10**7], [10**6], [10_000], min_thr=0, confident_q4=160,
                           bottom_rise=[RISE_MAX])

@@ -9,10 +9,11 @@ largest rise), then ``model.depth.depth_from_peaks`` with the bank's reference o
 range-walk table (``firmware_host.walk.calibrate_walk``: shots at random depths of the survey's
 scene, seeded apart from every evaluation, through the same chain; what ``albcap coeffs``
 stores in a bank file and ``albcap depth`` applies). A depth whose peaks do not both stand 10
-x noise out (the surface above the baseline, the bottom above the running minimum since the
-surface: its record's rise; ``CONFIDENT_K_THR_Q4``) is *weak* (``Estimate.confident`` False;
-``model.depth.confident_peaks``), and so is a bottom found with a template the range-walk
-calibration could not measure (``firmware_host.walk.calibrated_templates``).
+x noise out (the surface above the baseline, the bottom above it and above the running
+minimum since the surface: its record's rise; ``CONFIDENT_K_THR_Q4``) is *weak*
+(``Estimate.confident`` False; ``model.depth.confident_peaks``), and so is a bottom found
+with a template the range-walk calibration could not measure
+(``firmware_host.walk.calibrated_templates``).
 """
 
 from __future__ import annotations
