@@ -25,7 +25,8 @@ packetizer only once its frame is inside, and ``bank_id`` is written into it the
 from __future__ import annotations
 
 from amaranth.hdl import Cat, Module, Mux, Signal
-from amaranth.lib import data, memory, stream, wiring
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
 from model.layouts import FRAME_HEADER
@@ -63,19 +64,19 @@ def _fifo_ports(width: int) -> dict:
 
 
 class _SideFIFO(wiring.Component):
-    """The FIFO beside a stage: ``amaranth.lib.fifo.SyncFIFO``'s ports and behaviour, clock
-    for clock (no ``level`` port), with every late input passing one LUT.
+    """A ``SyncFIFO`` whose ``w_rdy`` and ``r_rdy`` are registers, not compares of its level.
 
-    The handshakes of the stage beside it reach its flags and its counters. In ``SyncFIFO``
-    the flags are compares of the level (``beside_filter.level`` -> the filter's handshakes
-    -> its output buffer was the pipeline's worst path, 9.16 ns), so they became registers,
-    each the next level's compare made from the level register (``level != depth - 1``,
-    ``level != 1``) and chosen by this clock's write and read. Its level then still stepped
-    by an add after the handshake: the filter's last stage ``valid`` -> the join's take ->
-    the read -> the level's carry chain was the worst path of two of run 39's three seeds
-    (6.79 and 7.09 ns). Here the level and both pointers step by a choice among values made
-    from their registers alone (``_step``), which ``SyncFIFO`` offers no way to ask for, so
-    the memory and its pointers are written out. Tested clock for clock against ``SyncFIFO``.
+    The handshakes of the stage beside it reach these flags; as compares of ``level`` they put
+    the level's LUTs in front of that stage's own logic (``beside_filter.level`` -> the
+    filter's handshakes -> its output buffer was the pipeline's worst path, 9.16 ns). Each
+    flag is the next level's compare made from the level register (``level != depth - 1``,
+    ``level != 1``), chosen by this clock's write and read: the late handshakes pass one LUT.
+    Same ports, same behaviour clock for clock as ``SyncFIFO(width, depth)`` (no ``level``;
+    tested). Its level still steps by an add after the handshake, which ended the worst path
+    of two of run 39's three seeds (the filter's last stage ``valid`` -> the join's take ->
+    the read -> the level, 6.8-7.1 ns); the FIFO written out with its level and pointers
+    stepped from their registers (run 40) placed no better (140.6, 129.8, 142.4 MHz against
+    147.2, 157.8, 141.0; in seed 2 the path still ended at its level), so the library's stays.
     """
 
     def __init__(self, width: int, depth: int):
@@ -86,27 +87,17 @@ class _SideFIFO(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        n = self.depth
-        mem = m.submodules.mem = memory.Memory(shape=len(self.w_data), depth=n, init=[])
-        wp, rp = mem.write_port(), mem.read_port(domain="comb")
-        w_ptr, r_ptr = Signal(range(n)), Signal(range(n))
-        level = Signal(range(n + 1))
+        fifo = m.submodules.fifo = SyncFIFO(width=len(self.w_data), depth=self.depth)
         do_write = self.w_en & self.w_rdy
         do_read = self.r_en & self.r_rdy
-
-        def advance(ptr, move):
-            return Mux(move, Mux(ptr == n - 1, 0, ptr + 1), ptr)
-
-        m.d.comb += [wp.addr.eq(w_ptr), wp.data.eq(self.w_data), wp.en.eq(do_write),
-                     rp.addr.eq(r_ptr), self.r_data.eq(rp.data)]
+        m.d.comb += [fifo.w_data.eq(self.w_data), fifo.w_en.eq(do_write),
+                     self.r_data.eq(fifo.r_data), fifo.r_en.eq(do_read)]
         # a write and a read together leave the level as it is: both flags then stay high
         # (the write needed room, the read an entry)
         m.d.sync += [
-            w_ptr.eq(advance(w_ptr, do_write)),
-            r_ptr.eq(advance(r_ptr, do_read)),
-            level.eq(_step(level, do_write, do_read)),
-            self.w_rdy.eq(Mux(do_read, 1, Mux(do_write, level != n - 1, self.w_rdy))),
-            self.r_rdy.eq(Mux(do_write, 1, Mux(do_read, level != 1, self.r_rdy))),
+            self.w_rdy.eq(Mux(do_read, 1, Mux(do_write, fifo.level != self.depth - 1,
+                                              self.w_rdy))),
+            self.r_rdy.eq(Mux(do_write, 1, Mux(do_read, fifo.level != 1, self.r_rdy))),
         ]
         return m
 

@@ -201,7 +201,7 @@ def test_register_slice_keeps_order_and_loses_nothing(p_write, p_read):
 
 @pytest.mark.parametrize("depth", [2, 3, 4, 17])
 def test_side_fifo_is_syncfifo_clock_for_clock(depth):
-    """``_SideFIFO`` (flags and counters stepped from registers) against
+    """``_SideFIFO`` (its flags registers, each chosen from the level's compares) against
     ``amaranth.lib.fifo.SyncFIFO`` of the same depth, the same random writes and reads on
     4 000 clocks: the same ``w_rdy`` and ``r_rdy`` on every clock, the same ``r_data`` whenever
     an entry is there."""
