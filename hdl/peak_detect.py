@@ -69,7 +69,7 @@ PEAK_RESULT = data.StructLayout({
 
 _Y = signed(OUT_WIDTH)
 _KEY = signed(OUT_WIDTH + 2)  # y (rule 1) or a rise y - vmin (rule 2)
-_RISE = unsigned(16)  # the record's rise: rule 2's key, saturated
+_RISE = unsigned(PEAK_RECORD["rise"].bits)  # the record's rise: rule 2's key, saturated
 
 
 def record_layout(k_shape) -> data.StructLayout:

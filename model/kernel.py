@@ -21,12 +21,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .peak_detect import RISE_MAX
+
 __all__ = ["filter_detect_frames"]
 
 _Y_HI = (1 << 23) - 1
 _Y_LO = -(1 << 23)
 _NOISE_MAX = (1 << 24) - 1
-_RISE_MAX = (1 << 16) - 1
+_RISE_MAX = RISE_MAX  # (a global: numba reads it as a constant)
 #: Samples filtered per run while no surface is known (then runs end at bin boundaries).
 _RUN = 256
 

@@ -112,8 +112,8 @@ def thresholds(mu_sum, noise_sum, cfg):
     return mu, noise, thr
 
 
-#: The record's ``rise`` saturates here (u16 field).
-RISE_MAX = (1 << 16) - 1
+#: The record's ``rise`` saturates here (its ``PEAK_RECORD`` field, u16).
+RISE_MAX = (1 << PEAK_RECORD["rise"].bits) - 1
 
 
 def make_peaks(found, n, abc, mu, template, rise=0) -> Peaks:
