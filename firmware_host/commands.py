@@ -175,15 +175,12 @@ def _cmd_depth(args) -> int:
     if conf_q4 is None:
         sure = dep.valid
     else:
-        regs = meta.get("registers", {})
-        min_thr = int(regs.get("min_thr", 0))
-        # the records carry the bottom's rise under rule 2 (the survey banks' rule)
-        rule2 = int(regs.get("bottom_rule", 0)) == 2
+        min_thr = int(meta.get("registers", {}).get("min_thr", 0))
         sure = dep.valid & confident_peaks(pk["amplitude"][:, 0], pk["amplitude"][:, 1],
                                            pk["noise"][:, 0], min_thr=min_thr,
                                            confident_q4=int(conf_q4),
                                            noise_floor=int(meta.get("floor_noise", 0)),
-                                           bottom_rise=pk["rise"][:, 1] if rule2 else None)
+                                           bottom_rise=pk["rise"][:, 1])
     d = dep.depth_m[dep.valid]
     if args.csv:
         np.savetxt(args.csv, np.column_stack([np.arange(len(frames)), dep.valid, sure,

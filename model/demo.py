@@ -82,8 +82,7 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
         sure = dep.valid & confident_peaks(p.surface.amplitude, p.bottom.amplitude, p.noise,
                                            min_thr=cfg.min_thr, confident_q4=CONFIDENT_K_THR_Q4,
                                            noise_floor=sb.floor_noise,
-                                           bottom_rise=p.bottom.rise if cfg.bottom_rule == 2
-                                           else None)
+                                           bottom_rise=p.bottom.rise)
         rows.append({
             "depth_m": d,
             "detected": int(dep.valid.sum()),

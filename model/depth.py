@@ -176,10 +176,12 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
     where it has decayed under the baseline, a noise dip makes the rise exceed the amplitude,
     and a false bottom of the Monte Carlo sweep at 23 m (8 taps) passed by its rise that its
     amplitude kept weak. A bottom must stand out of both. A rise saturated in its u16 field
-    counts as the amplitude. A frame's noise is measured on a short
-    window of correlated samples and can read far below the noise that is always there; a
-    reading under ``noise_floor`` is taken as that floor (a frame whose noise read 21 against
-    a median of 29 gave a confident false bottom 16 m off at 231 LSB, 11 x its reading).
+    counts as the amplitude, and so does a zero rise: a bottom found under rule 2 rises above
+    ``thr >= 0``, so a zero is a record that carries none (rules 0 and 1). A frame's noise is
+    measured on a short window of correlated samples and can read far below the noise that is
+    always there; a reading under ``noise_floor`` is taken as that floor (a frame whose noise
+    read 21 against a median of 29 gave a confident false bottom 16 m off at 231 LSB, 11 x its
+    reading).
 
     Parameters
     ----------
@@ -195,8 +197,7 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
         The noise reading of the noise floor alone, filter LSB
         (``firmware_host.coeffs.SceneBank.floor_noise``; 0: none).
     bottom_rise : int array, shape (B,), optional
-        The bottom records' ``rise`` (filter LSB). Give it only for frames taken with
-        ``bottom_rule = 2``: under the other rules the records carry 0.
+        The bottom records' ``rise`` (filter LSB; 0 where a record carries none).
 
     Returns
     -------
@@ -211,5 +212,5 @@ def confident_peaks(surface_amplitude, bottom_amplitude, noise, *, min_thr: int,
     bottom = np.asarray(bottom_amplitude, dtype=np.int64)
     if bottom_rise is not None:
         rise = np.asarray(bottom_rise, dtype=np.int64)
-        bottom = np.where(rise >= RISE_MAX, bottom, np.minimum(rise, bottom))
+        bottom = np.where((rise == 0) | (rise >= RISE_MAX), bottom, np.minimum(rise, bottom))
     return (np.asarray(surface_amplitude, dtype=np.int64) > thr) & (bottom > thr)

@@ -21,14 +21,13 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .peak_detect import RISE_MAX
+from .peak_detect import RISE_MAX  # (numba reads a global as a constant)
 
 __all__ = ["filter_detect_frames"]
 
 _Y_HI = (1 << 23) - 1
 _Y_LO = -(1 << 23)
 _NOISE_MAX = (1 << 24) - 1
-_RISE_MAX = RISE_MAX  # (a global: numba reads it as a constant)
 #: Samples filtered per run while no surface is known (then runs end at bin boundaries).
 _RUN = 256
 
@@ -181,7 +180,7 @@ def _frames(x, h, regs, y, out):
             out[f, base + 3] = _template(p, s, K, bin_offset, bin_len)
             out[f, base + 4] = 1
         if b >= 0 and bottom_rule == 2:  # rule 2's key is the rise (u16 in the record)
-            out[f, 13] = best if best < _RISE_MAX else _RISE_MAX
+            out[f, 13] = best if best < RISE_MAX else RISE_MAX
 
 
 def filter_detect_frames(x: np.ndarray, coefs: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray]:

@@ -130,7 +130,7 @@ class ChainMethod(Method):
         sure = confident_peaks(p.surface.amplitude, p.bottom.amplitude, p.noise,
                                min_thr=cfg.min_thr, confident_q4=self._confident_q4,
                                noise_floor=self._sb.floor_noise,
-                               bottom_rise=p.bottom.rise if cfg.bottom_rule == 2 else None)
+                               bottom_rise=p.bottom.rise)
         if self._walk is not None:
             sure = sure & self._calibrated[np.clip(p.bottom.template, 0, len(self._calibrated) - 1)]
         ts = event_time_s(p.surface.position_q8, p.surface.template, self._sb.bank.ref_offsets,
