@@ -2,10 +2,11 @@
 
 A bank is ``K`` templates of ``L`` signed 16-bit taps (``model.matched_filter.Bank``). Template 0
 is the emitted pulse; template ``k >= 1`` is the bottom return expected in depth bin ``k - 1``
-(seed 001: Monte Carlo returns, stretched with depth). Every template is scaled to the same sum
-of taps (DC gain) before rounding, so that a template switch leaves the filtered water column
-continuous and the peak detector's one threshold stays on the safe side (``docs/spec.md``
-section 4); equal energy is available too.
+(seed 001: Monte Carlo returns, stretched with depth). A scene's bank scales every template to
+the same noise gain for the receiver's noise floor before rounding, so that the peak detector's
+one threshold, set from template 0's noise, stands the same number of deviations above the noise
+whichever template is in use (``docs/spec.md`` section 4); the same sum of taps (DC gain) and
+the same energy are available too.
 
 Files: JSON (the bank with its metadata, for people and for ``albcap load``) and ``$readmemh``
 hex (for FPGA memory initialization: ``K_MAX * L_MAX`` words, template ``k`` tap ``j`` at address
@@ -174,7 +175,7 @@ def gaussian_pulse(fwhm_samples: float, n_taps: int, centre: float | None = None
 
 
 def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0,
-                        normalize: str = "dc") -> Bank:
+                        normalize: str = "dc", noise_rms=None) -> Bank:
     """Quantize float templates to a bank of 16-bit templates on one common scale.
 
     Parameters
@@ -185,12 +186,17 @@ def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0,
         Index within each template of the true event time, samples (default: each argmax).
     bank_id : int
         Commit count recorded in frame headers.
-    normalize : {"dc", "energy"}
+    normalize : {"dc", "energy", "noise"}
         ``dc`` (default): every template has the same sum of taps, so a slowly varying input
-        (the water column) gives the same output whichever template is in use, and a template
-        switch cannot make a false peak; broader templates then have less noise gain than
-        template 0, so the threshold set from template 0's noise is on the safe side.
-        ``energy``: the same L2 norm, i.e. the same white-noise gain for all.
+        (the water column) gives the same output whichever template is in use; broader
+        templates then have less noise gain than template 0, and a threshold set from
+        template 0's noise stands more deviations above theirs (on a seed 000 bank, twice as
+        many for the deepest template: its reach is lost). ``energy``: the same L2 norm, i.e.
+        the same white-noise gain for all. ``noise``: the same output noise ``noise_rms(t)``
+        for all (:func:`scene_bank`: the scene's floor, white and band-limited parts).
+    noise_rms : callable, optional
+        For ``normalize="noise"``: float template (L,) -> the standard deviation of the filter
+        output that the noise gives through it (any one unit for all templates).
 
     Returns
     -------
@@ -203,12 +209,22 @@ def bank_from_templates(templates, ref_offsets=None, bank_id: int = 0,
         raise ValueError(f"templates must have shape (K <= {K_MAX}, L <= {L_MAX}), not {t.shape}")
     if not np.all(np.isfinite(t)):
         raise ValueError("templates must be finite; they contain NaN or infinity")
-    if normalize not in ("dc", "energy"):
-        raise ValueError(f"normalize must be 'dc' or 'energy', not {normalize!r}")
-    norms = np.linalg.norm(t, axis=1) if normalize == "energy" else np.abs(t.sum(axis=1))
+    if normalize not in ("dc", "energy", "noise"):
+        raise ValueError(f"normalize must be 'dc', 'energy' or 'noise', not {normalize!r}")
+    if normalize == "noise" and not callable(noise_rms):
+        raise ValueError(f"normalize='noise' needs noise_rms, a function of a template; "
+                         f"got {noise_rms!r}")
+    if normalize == "dc":
+        norms = np.abs(t.sum(axis=1))
+    elif normalize == "energy":
+        norms = np.linalg.norm(t, axis=1)
+    else:
+        norms = np.array([float(noise_rms(row)) for row in t])
+        if not np.all(np.isfinite(norms) & (norms >= 0)):
+            raise ValueError(f"noise_rms must give finite values >= 0, gave {norms.tolist()}")
     if np.any(norms == 0):
-        what = "all zeros" if normalize == "energy" else "of zero sum"
-        raise ValueError(f"template {int(np.argmin(norms))} is {what}")
+        what = {"dc": "of zero sum", "energy": "all zeros", "noise": "of zero noise gain"}
+        raise ValueError(f"template {int(np.argmin(norms))} is {what[normalize]}")
     unit = t / norms[:, None]
     scale = _C_HI / np.max(np.abs(unit))
     coefs = np.clip(np.rint(unit * scale), _C_LO, _C_HI).astype(np.int16)
@@ -382,7 +398,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
                x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
                mc_packets: int = 20000, mc_seed: int = 4242,
                adc_noise_lsb: float | None = None, min_bin_offset: int = 0,
-               merge_equal: bool = True) -> SceneBank:
+               merge_equal: bool = True, normalize: str = "noise") -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
@@ -427,6 +443,18 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         section 5, step 4): a blind band two samples wide for nothing. On an unstretched
         bottom every bin holds the pulse and the bank becomes the fixed filter (``K = 1``).
         ``False`` keeps all ``n_templates``.
+    normalize : {"noise", "dc", "energy"}
+        How the templates are scaled against each other (:func:`bank_from_templates`).
+        ``noise`` (default): the same output noise for the scene's floor
+        (:func:`filtered_floor_rms`, or ``adc_noise_lsb`` as white noise), so the detector's
+        threshold from template 0's noise windows is the same number of deviations for every
+        template. Against ``dc`` (the same sum of taps; this bank's deepest template then
+        has half template 0's noise gain and its threshold twice the deviations) it found the
+        Monte Carlo bottom at 24 m in 182 of 200 shots against 28 and at 25 m in 141 against
+        5, the same shots from 3 to 21 m, and no bottom in 200 shots without one
+        (``docs/methods.md``, "Templates of equal noise gain"). The switch then steps the
+        filtered water column by the ratio of the two templates' sums; the detector refuses a
+        peak whose neighbours straddle a switch (spec section 5, step 4).
     """
     from sim.optics import refracted_angle
     from sim.stretching import law_for_scene
@@ -518,7 +546,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
                                      right=0.0)
             # share of the return's area the window holds (the rest is the tail cut off)
             coverage[k] = min(1.0, templates[k].sum() * dt / (waves[k - 1].sum() * step))
-    bank = bank_from_templates(templates, ref, bank_id)
+    bank = bank_from_templates(templates, ref, bank_id, normalize=normalize,
+                               noise_rms=lambda t: filtered_floor_rms(scene, t, 0, adc_noise_lsb))
     bin_offset = max(by_name("bin_offset").lo, min_bin_offset, round(first_bin_m / m_per_sample))
     bin_len = max(1, round(width_m / m_per_sample))
     if merge_equal:

@@ -56,10 +56,12 @@ def _cmd_coeffs(args) -> int:
     scene = load_scene_arg(args.preset)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    sb = scene_bank(scene, n_templates=args.templates, n_taps=args.taps)
+    sb = scene_bank(scene, n_templates=args.templates, n_taps=args.taps,
+                    normalize=args.normalize)
     # The registers the bank was made and calibrated for; `albcap config --bank` applies them.
     regs = survey_registers(sb)
-    meta = {"confident_q4": CONFIDENT_K_THR_Q4, "floor_noise": sb.floor_noise}
+    meta = {"confident_q4": CONFIDENT_K_THR_Q4, "floor_noise": sb.floor_noise,
+            "normalize": args.normalize}
     if args.walk_shots:
         walk = calibrate_walk(scene, sb.bank, Config(**regs), shots=args.walk_shots)
         meta["walk_samples"] = walk.tolist()
@@ -216,6 +218,9 @@ def register(sub) -> None:
     p.add_argument("--preset", default="seed000", help="scene preset or TOML scene file")
     p.add_argument("--templates", type=int, default=8, help="K, templates")
     p.add_argument("--taps", type=int, default=64, help="L, taps per template")
+    p.add_argument("--normalize", choices=("noise", "dc", "energy"), default="noise",
+                   help="templates scaled to the same noise gain for the scene's floor "
+                        "(default), the same sum of taps, or the same energy")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--walk-shots", type=int, default=2,
                    help="calibration shots per 0.1 m for the range-walk table (0: none)")

@@ -31,8 +31,38 @@ class TestQuantize:
         assert np.abs(b.coefs).max() == 32767
 
     def test_unknown_normalization(self):
-        with pytest.raises(ValueError, match="normalize must be 'dc' or 'energy', not 'peak'"):
+        with pytest.raises(ValueError,
+                           match="normalize must be 'dc', 'energy' or 'noise', not 'peak'"):
             coeffs.bank_from_templates(templates(), normalize="peak")
+
+    def test_equal_noise_for_a_given_noise(self):
+        # white noise: the same as equal energy; a low-pass noise weighs broad templates more
+        t = templates()
+        white = coeffs.bank_from_templates(t, normalize="noise", noise_rms=np.linalg.norm)
+        energy = coeffs.bank_from_templates(t, normalize="energy")
+        assert np.abs(white.coefs.astype(int) - energy.coefs).max() <= 1
+        lags = np.arange(-31, 32)
+        r = np.exp(-lags ** 2 / 8.0)  # a Gaussian autocorrelation of 2 samples
+
+        def red(c):
+            return np.sqrt(np.correlate(c, c, "full") @ r)
+
+        b = coeffs.bank_from_templates(t, normalize="noise", noise_rms=red)
+        out = np.array([red(c) for c in b.coefs.astype(float)])
+        assert np.ptp(out) / out.mean() < 1e-3
+        assert np.abs(b.coefs).max() == 32767
+
+    def test_noise_normalization_needs_its_noise(self):
+        with pytest.raises(ValueError, match="normalize='noise' needs noise_rms.*got None"):
+            coeffs.bank_from_templates(templates(), normalize="noise")
+        with pytest.raises(ValueError, match=r"noise_rms must give finite values >= 0, gave "
+                                             r"\[nan"):
+            coeffs.bank_from_templates(templates(), normalize="noise",
+                                       noise_rms=lambda c: float("nan"))
+        t = templates()
+        t[1] = 0
+        with pytest.raises(ValueError, match="template 1 is of zero noise gain"):
+            coeffs.bank_from_templates(t, normalize="noise", noise_rms=np.linalg.norm)
 
     def test_snr_loss_is_small_and_positive(self):
         t = templates()
@@ -138,10 +168,15 @@ class TestSceneBank:
         assert 16 <= made.bin_offset and made.bin_len > 100
         assert np.all(made.snr_loss_db < 1e-3)
 
-    def test_templates_share_dc_gain_and_centroid(self, made):
+    def test_templates_share_noise_gain_and_centroid(self, made):
+        from sim.scene import preset
+
         h = made.bank.coefs.astype(float)
+        floor = np.array([coeffs.filtered_floor_rms(preset("seed000"), t, 0) for t in h])
+        assert np.ptp(floor) / floor.mean() < 1e-3
+        # the broad deep returns need a larger sum of taps for the same noise
         dc = h.sum(axis=1)
-        assert np.ptp(dc) / dc.mean() < 1e-3
+        assert np.all(np.diff(dc) > 0) and dc[-1] > 1.5 * dc[0]
         centroid = (h * np.arange(48)).sum(axis=1) / dc
         whole = made.coverage > 0.95  # returns whose tail the window holds
         assert whole.sum() >= 2

@@ -83,6 +83,17 @@ class TestArguments:
         assert code == 0 and "SNR loss dB" in out and "coverage" in out
         assert (tmp_path / "bank.json").exists() and (tmp_path / "bank.hex").exists()
 
+    def test_coeffs_records_its_normalization(self, capsys, tmp_path, bank_dir):
+        code, _, _ = _run(capsys, "coeffs", "--templates", "3", "--taps", "32",
+                          "--normalize", "dc", "--walk-shots", "0", "--out", str(tmp_path))
+        assert code == 0
+        bank, meta = load_bank_json(tmp_path / "bank.json")
+        dc = bank.coefs.astype(int).sum(axis=1)
+        assert meta["normalize"] == "dc" and np.ptp(dc) <= 3
+        default, meta = load_bank_json(bank_dir / "bank.json")
+        assert meta["normalize"] == "noise"
+        assert np.all(np.diff(default.coefs.astype(int).sum(axis=1)) > 0)  # broader: larger sum
+
 
 def _model_frames(cfg: Config, bank, n: int, pool: int, seed: int, prf_hz: float) -> list:
     """The model's own frames for the emulator's scene and seed, computed from scratch."""

@@ -486,12 +486,15 @@ def test_a_noise_bump_before_the_surface_is_not_the_surface():
     """The depth sweep's Monte Carlo batch at 16 m, shot 86: its noise window read 19 against
     a median of 29.5, its threshold fell to ``min_thr`` (158) and a noise bump of 159 LSB 20 ns
     before the surface echo was taken for the surface (the echo then for the bottom: 2.2 m,
-    13.8 m off, weak). The surface's own floor (``min_surf``) leaves that bump below it."""
+    13.8 m off, weak). The surface's own floor (``min_surf``) leaves that bump below it. The
+    bank of that sweep had templates of equal sums of taps (``normalize="dc"``); with equal
+    noise gain its deep templates' larger sums raise ``out_shift`` by one, and the bump, then
+    79 LSB against ``min_thr`` 79, no longer passes even without the floor."""
     from model.accuracy import DEPTHS_FULL, chunk_seed, study_base
 
     base = study_base(DEPTHS_FULL)
     shots = make_shots(base, 16.0, 250, seed=chunk_seed("main", 0, 15, 1))
-    m = get_method("adaptive_mf")()
+    m = get_method("adaptive_mf")(normalize="dc")
     m.prepare(setup_for(base))
     assert m._cfg.min_surf == 16 * m._cfg.min_thr
     e = m.estimate(shots)
@@ -555,3 +558,23 @@ def test_a_bump_on_the_water_column_past_reach_is_weak():
                                    noise_floor=m._sb.floor_noise)
     assert by_amplitude[0]  # what the records without the rise called it
     assert 0 < int(p.bottom.rise[0]) < int(p.bottom.amplitude[0]) // 2 + 10
+
+
+def test_templates_of_equal_noise_gain_reach_the_stretched_bottom(scene, setup):
+    """The Monte Carlo bottom at 24 m, past the old reach: the bank's deep templates are
+    broad, and with equal sums of taps (``normalize="dc"``) they had half template 0's noise
+    gain, so the threshold from template 0's noise stood twice as many deviations above
+    theirs. With equal noise gain (the default) most shots are found, within the bound."""
+    shots = make_shots(scene, 24.0, 40, seed=11)
+    found = {}
+    for normalize in ("noise", "dc"):
+        m = get_method("adaptive_mf")(normalize=normalize)
+        m.prepare(setup)
+        e = run_quiet(m, shots)
+        assert_well_formed(e, 40)
+        good = e.detected & (np.abs(e.depth_m - 24.0) < m.error_bound_m)
+        assert not (e.confident & e.detected & ~good).any()
+        found[normalize] = int(good.sum())
+    assert found["noise"] >= 30 and found["dc"] <= 16, found
+    with pytest.raises(ValueError, match="normalize must be 'noise', 'dc' or 'energy', not 'x'"):
+        get_method("adaptive_mf")(normalize="x")

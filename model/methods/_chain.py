@@ -56,13 +56,17 @@ class ChainMethod(Method):
     walk : bool
         Correct the depths with the bank's range-walk table (default), as ``albcap depth``
         does with a bank file from ``albcap coeffs``; False gives the raw depths.
+    normalize : {"noise", "dc", "energy"}
+        How the bank's templates are scaled against each other
+        (``firmware_host.coeffs.scene_bank``): the same noise gain (default), the same sum of
+        taps, or the same energy.
     """
 
     bit_exact = True
     n_templates = 1
 
     def __init__(self, stitch: str = "linear", walk: bool = True, k_thr_q4: int | None = None,
-                 taps: int = N_TAPS, min_bin_offset: int = 0):
+                 taps: int = N_TAPS, min_bin_offset: int = 0, normalize: str = "noise"):
         if not (isinstance(taps, int) and not isinstance(taps, bool) and 2 <= taps <= N_TAPS):
             raise ValueError(f"taps must be an integer in 2..{N_TAPS}, not {taps!r}")
         if not (isinstance(min_bin_offset, int) and not isinstance(min_bin_offset, bool)
@@ -73,8 +77,11 @@ class ChainMethod(Method):
             raise ValueError(f"stitch must be 'linear' or 'paper', not {stitch!r}")
         if k_thr_q4 is not None and not (isinstance(k_thr_q4, int) and 0 <= k_thr_q4 <= 4095):
             raise ValueError(f"k_thr_q4 must be an integer in 0..4095, not {k_thr_q4!r}")
+        if normalize not in ("noise", "dc", "energy"):
+            raise ValueError(f"normalize must be 'noise', 'dc' or 'energy', not {normalize!r}")
         self.stitch = stitch
         self.walk = walk
+        self.normalize = normalize
         self.k_thr_q4 = k_thr_q4
         self.taps = taps
         self.min_bin_offset = min_bin_offset
@@ -92,7 +99,7 @@ class ChainMethod(Method):
         linear = self.stitch == "linear"
         sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=self.taps,
                         x_range=X_RANGE if linear else (0, 765),
-                        min_bin_offset=self.min_bin_offset)
+                        min_bin_offset=self.min_bin_offset, normalize=self.normalize)
         self._cfg = Config(**survey_registers(sb, stitch_mode=1 if linear else 0),
                            **_stitch_registers(setup))
         if self.k_thr_q4 is not None:
