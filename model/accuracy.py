@@ -697,12 +697,19 @@ def targets(methods: list, fpga: dict | None = None, serial: dict | None = None,
         build = _chosen_build(builds, ref)
         if build is not None:  # the build's own bank and chip time, named in the rows
             chip = {**chip, "name": build["name"], "summary": build["summary"],
+                    "per_depth": build["per_depth"],
                     "us_per_waveform": build["us_per_waveform"]}
             fpga = build["fpga"]
-        ratio = chip["summary"]["rmse_m"] / ref["summary"]["rmse_m"]
-        out.append({"id": "onchip_rmse", "text": "on-chip adaptive RMSE <= 2 x best offline",
+        common = common_rmse_ratio(chip, ref)
+        ratio, depths = common if common is not None else (math.inf, [])
+        pooled = chip["summary"]["rmse_m"] / ref["summary"]["rmse_m"]
+        where = (f"{len(depths)} depths {depths[0]:g}-{depths[-1]:g} m both answer"
+                 if depths else "no depth both answer")
+        out.append({"id": "onchip_rmse",
+                    "text": f"on-chip adaptive RMSE <= 2 x best offline (on the {where}; "
+                            f"pooled over each one's own answers {pooled:.2f} x)",
                     "method": f"{chip['name']} vs {ref['name']}", "value": _r(ratio, 3),
-                    "met": ratio <= 2.0})
+                    "met": ratio <= 2.0, "pooled": _r(pooled, 3), "depths_m": depths})
         if chip["us_per_waveform"] and ref["us_per_waveform"]:
             model = ref["us_per_waveform"] / chip["us_per_waveform"]
             row = {"id": "onchip_speed", "method": f"{chip['name']} vs {ref['name']}",
@@ -739,13 +746,45 @@ def _build_words(fpga: dict) -> str:
 
 
 def _chosen_build(builds: list | None, ref: dict) -> dict | None:
-    """The fastest of ``builds`` within twice ``ref``'s RMSE with no confident wrong depth
-    (``None``: no such build, or no builds)."""
+    """The fastest of ``builds`` within twice ``ref``'s RMSE (:func:`common_rmse_ratio`) with
+    no confident wrong depth (``None``: no such build, or no builds)."""
     ok = [b for b in builds or ()
-          if b["fpga"] and b["summary"]["rmse_m"] is not None
-          and b["summary"]["rmse_m"] <= 2.0 * ref["summary"]["rmse_m"]
+          if b["fpga"] and (r := common_rmse_ratio(b, ref)) is not None and r[0] <= 2.0
           and not b["summary"].get("n_wrong_confident")]
     return min(ok, key=lambda b: b["fpga"]["us_per_waveform"]) if ok else None
+
+
+def common_rmse_ratio(a: dict, b: dict, lo_hi=SUMMARY_RANGE_M):
+    """RMSE of method ``a`` over that of ``b`` on the depths both answer.
+
+    Each RMSE pools the method's detections (``per_depth`` rows: ``n_detected``, ``rmse_m``)
+    over the depths of ``lo_hi`` where both methods detect at least :data:`REACH_RATE` of the
+    shots. Pooled over each method's own detections instead, a method that answers deeper,
+    where every answer scatters by decimetres, would lose to one that does not answer there
+    at all (seventeenth session: the on-chip bank of equal noise gain answers 66 % at 25 m,
+    the best offline fit 24 %; pooled 2.58 x, on the depths both answer 0.74 x).
+
+    Returns
+    -------
+    (float, list of float) or None
+        The ratio and the depths [m] it was taken on; ``None`` if there is no such depth or
+        ``b``'s RMSE there is 0.
+    """
+    def rows(m):
+        return {r["depth_m"]: r for r in m["per_depth"]
+                if lo_hi[0] <= r["depth_m"] <= lo_hi[1]}
+
+    ra, rb = rows(a), rows(b)
+    depths = sorted(d for d in ra.keys() & rb.keys()
+                    if min(ra[d]["detection_rate"], rb[d]["detection_rate"]) >= REACH_RATE)
+
+    def pooled(r):
+        n = sum(r[d]["n_detected"] for d in depths)
+        return math.sqrt(sum(r[d]["n_detected"] * r[d]["rmse_m"] ** 2 for d in depths) / n)
+
+    if not depths or pooled(rb) == 0:
+        return None
+    return pooled(ra) / pooled(rb), depths
 
 
 def study_base(depths):

@@ -184,8 +184,9 @@ def bench_builds(figures: dict | None = None, shots: int = SHOTS, seed: int = 0,
 
 
 def load_builds(path=None) -> dict | None:
-    """``variant -> [{"key", "fpga", "summary"}, ...]`` from the builds bench's JSON (default
-    :data:`BUILDS_FIGURES`), or ``None`` if there is none."""
+    """``variant -> [{"key", "name", "fpga", "us_per_waveform", "summary", "per_depth"},
+    ...]`` from the builds bench's JSON (default :data:`BUILDS_FIGURES`), or ``None`` if there
+    is none."""
     path = Path(BUILDS_FIGURES if path is None else path)
     if not path.exists():
         return None
@@ -199,6 +200,7 @@ def load_builds(path=None) -> dict | None:
             out.setdefault(name, []).append({"key": b["key"], "name": v["method"]["name"],
                                              "fpga": v["fpga"],
                                              "us_per_waveform": v["method"]["us_per_waveform"],
-                                             "summary": v["method"]["summary"]})
+                                             "summary": v["method"]["summary"],
+                                             "per_depth": v["method"]["per_depth"]})
     return out
 

@@ -131,6 +131,24 @@ class TestSummaryAndTargets:
         assert not res["all_met"]
         assert {x["id"]: x["met"] for x in res["targets"]}["onchip_speed"] is False
 
+    def test_rmse_target_compares_on_the_depths_both_answer(self):
+        """A chip that also answers where the offline method does not (26 m, 20 cm off, as near
+        the reach every answer scatters) is compared on the depths both answer; the pooled
+        ratio is reported beside it."""
+        ref = [_row(1.0, 0.01, 0.01, 1.0), _row(20.0, 0.01, 0.01, 1.0), _row(26.0, 0.0, 0.0, 0.1)]
+        chip = [_row(1.0, 0.01, 0.015, 1.0), _row(20.0, 0.01, 0.015, 1.0),
+                _row(26.0, 0.2, 0.1, 0.9)]
+        ms = [_method("adaptive_mf", chip, 10.0, bit_exact=True), _method("offline", ref, 5000.0)]
+        t = {x["id"]: x for x in targets(ms)["targets"]}["onchip_rmse"]
+        assert t["depths_m"] == [1.0, 20.0] and t["met"]
+        assert t["value"] == pytest.approx(math.hypot(0.01, 0.015) / math.hypot(0.01, 0.01),
+                                           abs=1e-3)
+        assert t["pooled"] > 2 and "on the 2 depths 1-20 m both answer" in t["text"]
+        ref[0], ref[1] = _row(1.0, 0.01, 0.0, 0.2), _row(20.0, 0.01, 0.0, 0.4)  # none in common
+        ms[1] = _method("offline", ref, 5000.0)
+        t = {x["id"]: x for x in targets(ms)["targets"]}["onchip_rmse"]
+        assert not t["met"] and t["depths_m"] == [] and "no depth both answer" in t["text"]
+
     def test_serial_offline_time_replaces_the_sweeps(self):
         """With an FPGA time, the speed bench's serial figure of the best offline method (when it
         has one) is the reference, not the sweep's time measured under load."""

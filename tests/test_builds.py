@@ -91,6 +91,7 @@ def _method(name, err, us, bit_exact=False, wrong=0):
 def _build(key, us, err, wrong=0):
     m = _method(f"adaptive_mf[{key}]", err, 20.0, True, wrong)
     return {"key": key, "name": m["name"], "us_per_waveform": 21.0, "summary": m["summary"],
+            "per_depth": m["per_depth"],
             "fpga": {"us_per_waveform": us, "key": key, "lanes": 1, "fmax_mhz": 100.0}}
 
 
