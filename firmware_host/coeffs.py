@@ -30,6 +30,7 @@ from model.registers import by_name
 __all__ = [
     "BANK_FORMAT",
     "CONFIDENT_K_THR_Q4",
+    "MERGE_LOSS_DB",
     "MIN_SURF_X",
     "MIN_THR_SIGMAS",
     "SURVEY_K_THR_Q4",
@@ -40,6 +41,7 @@ __all__ = [
     "filtered_floor_rms",
     "gaussian_pulse",
     "load_bank_json",
+    "mismatch_loss_db",
     "noise_floor_lsb",
     "out_shift_for",
     "quantization_snr_loss_db",
@@ -62,6 +64,16 @@ SURVEY_PRE_SURFACE_S = 200e-9
 #: one, all weak) but its extra depths near the limit scatter by metres within the fixed
 #: filter's 3 m bound, and the on-chip RMSE over 1-26 m grew eightfold (``docs/methods.md``).
 SURVEY_K_THR_Q4 = 128
+#: Neighbouring templates of a scene's bank that lose at most this much matched SNR for each
+#: other (``mismatch_loss_db``, 0.05 dB: 1.2 % of the SNR) share a run of bins
+#: (:func:`distinct_templates`): a switch to a template that buys no more than that is only a
+#: blind band. On the Monte Carlo survey bank template 1 (the 5.6 m bin) lost 0.016 dB against
+#: the pulse, and the bottom's filtered peak sat on the switch between them, where the
+#: detector refuses a peak whose neighbours straddle it: 0 of 20 shots found at 2.95 m, 33 of
+#: 100 at 3.0 m; with the two merged, all. Switches between templates that differ move a
+#: bottom's peak across the switch by a few samples (their reference offsets differ), and
+#: scans across the next four (0.028 m steps, 20 shots each) found no blind depth.
+MERGE_LOSS_DB = 0.05
 #: A depth is *confident* when both its peaks stand this factor (10.0) of the noise out, the
 #: surface by its amplitude and the bottom by its amplitude and its rise (under rule 2),
 #: ``> max(min_thr, (160 * noise) >> 4)``; the others are *weak*: reported, flagged, and held
@@ -398,7 +410,8 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
                x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
                mc_packets: int = 20000, mc_seed: int = 4242,
                adc_noise_lsb: float | None = None, min_bin_offset: int = 0,
-               merge_equal: bool = True, normalize: str = "noise") -> SceneBank:
+               merge_equal: bool = True, normalize: str = "noise",
+               merge_loss_db: float = MERGE_LOSS_DB) -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
@@ -443,6 +456,9 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         section 5, step 4): a blind band two samples wide for nothing. On an unstretched
         bottom every bin holds the pulse and the bank becomes the fixed filter (``K = 1``).
         ``False`` keeps all ``n_templates``.
+    merge_loss_db : float
+        With ``merge_equal``, neighbours that lose at most this much SNR for each other count
+        as equal too (:data:`MERGE_LOSS_DB`; 0: equal taps only).
     normalize : {"noise", "dc", "energy"}
         How the templates are scaled against each other (:func:`bank_from_templates`).
         ``noise`` (default): the same output noise for the scene's floor
@@ -551,7 +567,7 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     bin_offset = max(by_name("bin_offset").lo, min_bin_offset, round(first_bin_m / m_per_sample))
     bin_len = max(1, round(width_m / m_per_sample))
     if merge_equal:
-        keep, lead = distinct_templates(bank)
+        keep, lead = distinct_templates(bank, merge_loss_db)
         bank = Bank(bank.coefs[keep], bank.ref_offsets[keep], bank_id)
         templates, depths, coverage = templates[keep], depths[keep], coverage[keep]
         bin_offset = min(by_name("bin_offset").hi, bin_offset + lead * bin_len)
@@ -573,16 +589,30 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
     )
 
 
-def distinct_templates(bank: Bank) -> tuple[list[int], int]:
-    """The templates of ``bank`` a detector needs: equal neighbours dropped.
+def distinct_templates(bank: Bank, max_loss_db: float = 0.0) -> tuple[list[int], int]:
+    """The templates of ``bank`` a detector needs: equal (or equivalent) neighbours dropped.
 
     Two templates are *equal* when their taps differ by at most 1 (the rounding of
     :func:`bank_from_templates`) and their reference offsets by less than 1/256 sample (the
     resolution of a peak position): the filter then gives the same output and the depth stage
-    the same depth with either. Template selection (spec section 4) only allows a run of
-    equal bins to be dropped at either end: template 0 keeps serving the first ``lead`` bins
-    if they equal it (``bin_offset`` grows by ``lead * bin_len``), and the last template
-    serves every bin past the last distinct one (``k`` is capped at ``K - 1``).
+    the same depth with either. With ``max_loss_db > 0`` they are also *equivalent* when
+    either, filtering the other's shape (in white noise, at the best lag), loses at most
+    ``max_loss_db`` of the matched signal-to-noise ratio (:func:`mismatch_loss_db`): a switch
+    to it buys no more than that, yet costs a blind band (spec section 5, step 4). Their
+    reference offsets may then differ; the range-walk table, calibrated per template over the
+    bins it serves (``firmware_host.walk``), takes the difference out.
+
+    Template selection (spec section 4) only allows a run of bins to be dropped at either
+    end: template 0 keeps serving the first ``lead`` bins if each of their templates equals
+    (or is equivalent to) it (``bin_offset`` grows by ``lead * bin_len``), and the last kept
+    template serves every bin past it when each of theirs equals it (``k`` is capped at
+    ``K - 1``).
+
+    Parameters
+    ----------
+    bank : Bank
+    max_loss_db : float
+        SNR loss under which two templates count as equivalent, dB (0: equal ones only).
 
     Returns
     -------
@@ -591,19 +621,38 @@ def distinct_templates(bank: Bank) -> tuple[list[int], int]:
     lead : int
         Bins dropped after template 0.
     """
+    if not (isinstance(max_loss_db, int | float) and 0 <= max_loss_db < 3):
+        raise ValueError(f"max_loss_db must be a number in 0..3 dB, not {max_loss_db!r}")
     c = bank.coefs.astype(np.int64)
     ref = bank.ref_offsets
 
-    def equal(a, b):
-        return np.abs(c[a] - c[b]).max() <= 1 and abs(ref[a] - ref[b]) < 1 / 256
+    def same(a, b):
+        if np.abs(c[a] - c[b]).max() <= 1 and abs(ref[a] - ref[b]) < 1 / 256:
+            return True
+        return max_loss_db > 0 and mismatch_loss_db(c[a], c[b]) <= max_loss_db
 
     lead = 0
-    while lead + 1 < bank.K and equal(0, lead + 1):
+    while lead + 1 < bank.K and same(0, lead + 1):
         lead += 1
     last = bank.K - 1
-    while last > lead + 1 and equal(last, last - 1):
+    while last > lead + 1 and all(same(i, last - 1) for i in range(last, bank.K)):
         last -= 1
     return [0, *range(lead + 1, last + 1)], lead
+
+
+def mismatch_loss_db(a, b) -> float:
+    """Matched-filter SNR lost by filtering the shape of template ``a`` with template ``b``
+    instead of itself, dB (>= 0; the same either way round), in white noise at the best lag:
+    ``-10 log10(max_lag (a * b)^2 / (|a|^2 |b|^2))``."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    energy = float(a @ a) * float(b @ b)
+    if energy == 0:
+        raise ValueError("mismatch_loss_db needs two templates that are not all zeros")
+    peak = float(np.max(np.correlate(a, b, "full")))
+    if peak <= 0:
+        return math.inf
+    return max(0.0, -10.0 * math.log10(peak ** 2 / energy))
 
 
 def _write_atomic(path: Path, text: str) -> None:

@@ -762,7 +762,7 @@ def common_rmse_ratio(a: dict, b: dict, lo_hi=SUMMARY_RANGE_M):
     shots. Pooled over each method's own detections instead, a method that answers deeper,
     where every answer scatters by decimetres, would lose to one that does not answer there
     at all (seventeenth session: the on-chip bank of equal noise gain answers 66 % at 25 m,
-    the best offline fit 24 %; pooled 2.58 x, on the depths both answer 0.74 x).
+    the best offline fit 24 %; pooled 2.54 x, on the depths both answer 0.74 x).
 
     Returns
     -------

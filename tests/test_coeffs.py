@@ -346,6 +346,38 @@ class TestDistinctTemplates:
         c[1, 3] += 1
         assert coeffs.distinct_templates(Bank(c, b.ref_offsets)) == ([0, 1], 0)
 
+    def test_equivalent_templates_by_their_snr_loss(self):
+        # Gaussians of width 4, 4.05 (0.0008 dB apart), 6 (0.7 dB), 9, 9.1: equal taps only
+        # keep all five; with a tolerance the lead and the trailing pair merge
+        t = np.stack([coeffs.gaussian_pulse(w, 32) for w in (4, 4.05, 6, 9, 9.1)])
+        b = coeffs.bank_from_templates(t)
+        assert coeffs.distinct_templates(b) == ([0, 1, 2, 3, 4], 0)
+        assert coeffs.distinct_templates(b, 0.05) == ([0, 2, 3], 1)
+        assert coeffs.distinct_templates(b, 1.0) == ([0, 3], 2)
+        with pytest.raises(ValueError, match="max_loss_db must be a number in 0..3 dB, not -1"):
+            coeffs.distinct_templates(b, -1)
+
+    def test_trailing_run_is_judged_against_the_template_kept(self):
+        # 9, 10.4, 12: each under 0.05 dB from its neighbour, but 12 is 0.18 dB from 9
+        t = np.stack([coeffs.gaussian_pulse(w, 48) for w in (4, 9, 10.4, 12)])
+        b = coeffs.bank_from_templates(t)
+        step = coeffs.mismatch_loss_db(b.coefs[2], b.coefs[3])
+        far = coeffs.mismatch_loss_db(b.coefs[1], b.coefs[3])
+        assert step < 0.06 < far
+        assert coeffs.distinct_templates(b, 0.06) == ([0, 1, 2], 0)
+
+    def test_mismatch_loss_of_two_gaussians(self):
+        # sampled Gaussians of rms s1, s2: the continuous loss -10 log10(2 s1 s2 / (s1^2+s2^2))
+        a, b = (coeffs.gaussian_pulse(f, 64) for f in (8.0, 12.0))
+        s1, s2 = 8.0, 12.0
+        want = -10 * np.log10(2 * s1 * s2 / (s1 ** 2 + s2 ** 2))
+        assert coeffs.mismatch_loss_db(a, b) == pytest.approx(want, abs=1e-4)
+        assert coeffs.mismatch_loss_db(b, a) == pytest.approx(want, abs=1e-9 + want * 1e-9)
+        assert coeffs.mismatch_loss_db(a, 3 * a) == 0.0
+        assert coeffs.mismatch_loss_db(a, -a) == np.inf
+        with pytest.raises(ValueError, match="not all zeros"):
+            coeffs.mismatch_loss_db(a, np.zeros(64))
+
     def test_a_different_reference_offset_is_a_different_template(self):
         # the same taps read at another event time give another depth
         assert coeffs.distinct_templates(self.bank([0, 0], ref=[5.0, 5.5])) == ([0, 1], 0)

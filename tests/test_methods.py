@@ -578,3 +578,20 @@ def test_templates_of_equal_noise_gain_reach_the_stretched_bottom(scene, setup):
     assert found["noise"] >= 30 and found["dc"] <= 16, found
     with pytest.raises(ValueError, match="normalize must be 'noise', 'dc' or 'energy', not 'x'"):
         get_method("adaptive_mf")(normalize="x")
+
+
+def test_a_bottom_at_a_switch_between_equivalent_templates_is_detected(scene, setup):
+    """The Monte Carlo survey bank's template 1 (5.6 m) loses 0.016 dB against the pulse, and
+    a bottom at 2.95 m has its filtered peak on the switch between them, which the detector
+    refuses (spec section 5, step 4). Merged (``MERGE_LOSS_DB``), the switch is gone."""
+    from firmware_host.coeffs import MERGE_LOSS_DB
+
+    shots = make_shots(scene, 2.95, 20, seed=2948)
+    found = {}
+    for tol in (MERGE_LOSS_DB, 0.0):
+        m = get_method("adaptive_mf")(merge_loss_db=tol)
+        m.prepare(setup)
+        e = run_quiet(m, shots)
+        found[tol] = int((e.detected & (np.abs(e.depth_m - 2.95) < 0.05)).sum())
+        assert m._sb.bank.K == (8 if tol == 0 else 6)
+    assert found[MERGE_LOSS_DB] == 20 and found[0.0] <= 4, found

@@ -60,13 +60,17 @@ class ChainMethod(Method):
         How the bank's templates are scaled against each other
         (``firmware_host.coeffs.scene_bank``): the same noise gain (default), the same sum of
         taps, or the same energy.
+    merge_loss_db : float, optional
+        Neighbouring templates that lose at most this much SNR for each other share a bin
+        run (``firmware_host.coeffs.distinct_templates``); default ``scene_bank``'s.
     """
 
     bit_exact = True
     n_templates = 1
 
     def __init__(self, stitch: str = "linear", walk: bool = True, k_thr_q4: int | None = None,
-                 taps: int = N_TAPS, min_bin_offset: int = 0, normalize: str = "noise"):
+                 taps: int = N_TAPS, min_bin_offset: int = 0, normalize: str = "noise",
+                 merge_loss_db: float | None = None):
         if not (isinstance(taps, int) and not isinstance(taps, bool) and 2 <= taps <= N_TAPS):
             raise ValueError(f"taps must be an integer in 2..{N_TAPS}, not {taps!r}")
         if not (isinstance(min_bin_offset, int) and not isinstance(min_bin_offset, bool)
@@ -82,6 +86,7 @@ class ChainMethod(Method):
         self.stitch = stitch
         self.walk = walk
         self.normalize = normalize
+        self.merge_loss_db = merge_loss_db
         self.k_thr_q4 = k_thr_q4
         self.taps = taps
         self.min_bin_offset = min_bin_offset
@@ -99,7 +104,9 @@ class ChainMethod(Method):
         linear = self.stitch == "linear"
         sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=self.taps,
                         x_range=X_RANGE if linear else (0, 765),
-                        min_bin_offset=self.min_bin_offset, normalize=self.normalize)
+                        min_bin_offset=self.min_bin_offset, normalize=self.normalize,
+                        **({} if self.merge_loss_db is None
+                           else {"merge_loss_db": self.merge_loss_db}))
         self._cfg = Config(**survey_registers(sb, stitch_mode=1 if linear else 0),
                            **_stitch_registers(setup))
         if self.k_thr_q4 is not None:
