@@ -456,9 +456,6 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         section 5, step 4): a blind band two samples wide for nothing. On an unstretched
         bottom every bin holds the pulse and the bank becomes the fixed filter (``K = 1``).
         ``False`` keeps all ``n_templates``.
-    merge_loss_db : float
-        With ``merge_equal``, neighbours that lose at most this much SNR for each other count
-        as equal too (:data:`MERGE_LOSS_DB`; 0: equal taps only).
     normalize : {"noise", "dc", "energy"}
         How the templates are scaled against each other (:func:`bank_from_templates`).
         ``noise`` (default): the same output noise for the scene's floor
@@ -466,11 +463,14 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         threshold from template 0's noise windows is the same number of deviations for every
         template. Against ``dc`` (the same sum of taps; this bank's deepest template then
         has half template 0's noise gain and its threshold twice the deviations) it found the
-        Monte Carlo bottom at 24 m in 182 of 200 shots against 28 and at 25 m in 141 against
+        Monte Carlo bottom at 24 m in 180 of 200 shots against 27 and at 25 m in 135 against
         5, the same shots from 3 to 21 m, and no bottom in 200 shots without one
         (``docs/methods.md``, "Templates of equal noise gain"). The switch then steps the
         filtered water column by the ratio of the two templates' sums; the detector refuses a
         peak whose neighbours straddle a switch (spec section 5, step 4).
+    merge_loss_db : float
+        With ``merge_equal``, neighbours that lose at most this much SNR for each other count
+        as equal too (:data:`MERGE_LOSS_DB`; 0: equal taps only).
     """
     from sim.optics import refracted_angle
     from sim.stretching import law_for_scene

@@ -702,7 +702,8 @@ def targets(methods: list, fpga: dict | None = None, serial: dict | None = None,
             fpga = build["fpga"]
         common = common_rmse_ratio(chip, ref)
         ratio, depths = common if common is not None else (math.inf, [])
-        pooled = chip["summary"]["rmse_m"] / ref["summary"]["rmse_m"]
+        pooled = (chip["summary"]["rmse_m"] / ref["summary"]["rmse_m"]
+                  if ref["summary"]["rmse_m"] > 0 else math.inf)
         where = (f"{len(depths)} depths {depths[0]:g}-{depths[-1]:g} m both answer"
                  if depths else "no depth both answer")
         out.append({"id": "onchip_rmse",

@@ -578,6 +578,8 @@ def test_templates_of_equal_noise_gain_reach_the_stretched_bottom(scene, setup):
     assert found["noise"] >= 30 and found["dc"] <= 16, found
     with pytest.raises(ValueError, match="normalize must be 'noise', 'dc' or 'energy', not 'x'"):
         get_method("adaptive_mf")(normalize="x")
+    with pytest.raises(ValueError, match="merge_loss_db must be a number in 0..3 dB, not -0.1"):
+        get_method("adaptive_mf")(merge_loss_db=-0.1)
 
 
 def test_a_bottom_at_a_switch_between_equivalent_templates_is_detected(scene, setup):

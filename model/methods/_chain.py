@@ -83,6 +83,9 @@ class ChainMethod(Method):
             raise ValueError(f"k_thr_q4 must be an integer in 0..4095, not {k_thr_q4!r}")
         if normalize not in ("noise", "dc", "energy"):
             raise ValueError(f"normalize must be 'noise', 'dc' or 'energy', not {normalize!r}")
+        if merge_loss_db is not None and not (isinstance(merge_loss_db, int | float)
+                                              and 0 <= merge_loss_db < 3):
+            raise ValueError(f"merge_loss_db must be a number in 0..3 dB, not {merge_loss_db!r}")
         self.stitch = stitch
         self.walk = walk
         self.normalize = normalize
