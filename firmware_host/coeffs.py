@@ -553,10 +553,11 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         for k in range(1, n_templates):
             # Seed 001: the templates are the Monte Carlo bottom returns themselves, seen through
             # the receiver's electrical response as the digitizer sees them. The return's
-            # centroid goes where template 0 has its own (the window's middle): with equal sums
-            # of taps all templates then delay a slowly varying input (the water column) alike,
-            # and a template switch leaves the filter output continuous. The hit time lands at
-            # ref[k] (below 0 when the centroid lies more than L/2 samples after the hit).
+            # centroid goes where template 0 has its own (the window's middle): all templates
+            # then delay a slowly varying input (the water column) alike, and a switch only
+            # scales it by the ratio of the two sums of taps (1 with normalize="dc"), never
+            # shifts it. The hit time lands at ref[k] (below 0 when the centroid lies more
+            # than L/2 samples after the hit).
             ref[k] = c0 - centroid[k - 1] / dt
             templates[k] = np.interp((j - ref[k]) * dt, time_s, waves[k - 1], left=0.0,
                                      right=0.0)
