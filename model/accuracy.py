@@ -42,8 +42,9 @@ from dask.callbacks import Callback
 
 __all__ = ["CHUNK", "DEPTHS_FULL", "DEPTHS_QUICK", "N_FULL", "N_MAX_FULL", "N_MAX_QUICK",
            "N_QUICK", "PAPERS", "MethodSpec", "Point", "Sweep", "bench_accuracy", "chunk_seed",
-           "depth_stats", "load_methods", "method_specs", "run_chunk", "run_sweeps",
-           "study_base", "summarize", "survey_base", "targets", "unstretched_sweep"]
+           "common_rmse_ratio", "depth_stats", "load_methods", "method_specs", "pooled_rmse",
+           "run_chunk", "run_sweeps", "study_base", "summarize", "survey_base", "targets",
+           "unstretched_sweep"]
 
 #: Shots per Dask task (a chunk): large enough that a task's fixed cost (the Monte Carlo
 #: kernels of the simulator, about 0.3 s) stays small, small enough to balance two workers.
@@ -494,6 +495,16 @@ def _r(x, nd=6):
     return None if x is None else round(float(x), nd)
 
 
+def pooled_rmse(rows: list) -> float | None:
+    """The RMSE of all the detections of per-depth ``rows`` (``n_detected``, ``rmse_m``) [m],
+    ``None`` without any."""
+    n = sum(r["n_detected"] for r in rows)
+    if not n:
+        return None
+    return math.sqrt(sum(r["rmse_m"] ** 2 * r["n_detected"] for r in rows
+                         if r["rmse_m"] is not None) / n)
+
+
 def summarize(rows: list, depths, lo_hi=SUMMARY_RANGE_M) -> dict:
     """Summary of one method's per-depth rows over the depths within ``lo_hi`` [m].
 
@@ -508,7 +519,6 @@ def summarize(rows: list, depths, lo_hi=SUMMARY_RANGE_M) -> dict:
     with_s = [r for _d, r in sel if r["std_m"] is not None]
     n = sum(r["n"] for _d, r in sel)
     n_det = sum(r["n_detected"] for _d, r in sel)
-    sq = sum(r["rmse_m"] ** 2 * r["n_detected"] for r in with_b)
     reached = [d for d, r in zip(depths, rows, strict=True)
                if r["n"] and r["n_close"] / r["n"] >= REACH_RATE]
     return {
@@ -517,7 +527,7 @@ def summarize(rows: list, depths, lo_hi=SUMMARY_RANGE_M) -> dict:
         "abs_bias_m": _r(np.mean([abs(r["bias_m"]) for r in with_b])) if with_b else None,
         "max_abs_bias_m": _r(max(abs(r["bias_m"]) for r in with_b)) if with_b else None,
         "std_m": _r(np.mean([r["std_m"] for r in with_s])) if with_s else None,
-        "rmse_m": _r(math.sqrt(sq / n_det)) if n_det else None,
+        "rmse_m": _r(pooled_rmse([r for _d, r in sel])),
         "detection_rate": _r(n_det / n) if n else None,
         "max_depth_m": max(reached) if reached else None,
         "n_wrong": sum(r["n_wrong"] for r in rows),
@@ -779,13 +789,10 @@ def common_rmse_ratio(a: dict, b: dict, lo_hi=SUMMARY_RANGE_M):
     depths = sorted(d for d in ra.keys() & rb.keys()
                     if min(ra[d]["detection_rate"], rb[d]["detection_rate"]) >= REACH_RATE)
 
-    def pooled(r):
-        n = sum(r[d]["n_detected"] for d in depths)
-        return math.sqrt(sum(r[d]["n_detected"] * r[d]["rmse_m"] ** 2 for d in depths) / n)
-
-    if not depths or pooled(rb) == 0:
+    if not depths:
         return None
-    return pooled(ra) / pooled(rb), depths
+    a_rmse, b_rmse = (pooled_rmse([r[d] for d in depths]) for r in (ra, rb))
+    return (a_rmse / b_rmse, depths) if b_rmse else None
 
 
 def study_base(depths):

@@ -100,7 +100,12 @@ class ChainMethod(Method):
 
     def prepare(self, setup: Setup) -> None:
         """Build the bank and the registers for the setup's scene (and compile the kernel)."""
-        from firmware_host.coeffs import CONFIDENT_K_THR_Q4, scene_bank, survey_registers
+        from firmware_host.coeffs import (
+            CONFIDENT_K_THR_Q4,
+            MERGE_LOSS_DB,
+            scene_bank,
+            survey_registers,
+        )
         from firmware_host.walk import calibrate_walk, calibrated_templates
 
         self._confident_q4 = CONFIDENT_K_THR_Q4
@@ -108,8 +113,8 @@ class ChainMethod(Method):
         sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=self.taps,
                         x_range=X_RANGE if linear else (0, 765),
                         min_bin_offset=self.min_bin_offset, normalize=self.normalize,
-                        **({} if self.merge_loss_db is None
-                           else {"merge_loss_db": self.merge_loss_db}))
+                        merge_loss_db=(MERGE_LOSS_DB if self.merge_loss_db is None
+                                       else self.merge_loss_db))
         self._cfg = Config(**survey_registers(sb, stitch_mode=1 if linear else 0),
                            **_stitch_registers(setup))
         if self.k_thr_q4 is not None:
