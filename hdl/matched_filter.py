@@ -161,10 +161,13 @@ def _flow_control(m: Module, c, capacity: int, hold_nx=None, decoded: bool = Fal
     # logic's paths.
     room, full = Signal(init=1), Signal()
     accept_dl = Signal()  # = accept, for the delay line
+    # i.ready is the register alone: a coefficient write holds the samples through `hold_nx`
+    # (into `full` a clock later), not through a gate on `coef.valid`, whose route into
+    # `accept` was the worst path of the 4 x 32 and 8 x 16 joins (`_coef_chain`)
     m.d.comb += [
-        c.i.ready.eq(~full & ~c.coef.valid),
+        c.i.ready.eq(~full),
         accept.eq(c.i.valid & c.i.ready),
-        accept_dl.eq(c.i.valid & room & ~c.coef.valid),
+        accept_dl.eq(c.i.valid & room),
         take.eq(c.o.valid & c.o.ready),
         c.coef.ready.eq(1),
     ]
@@ -270,13 +273,16 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
 
 def _coef_chain(m: Module, coef, groups: int, read_after: int = 2):
     """The coefficient writes as a chain of ``groups`` registered links, link ``g`` a clock
-    after link ``g - 1`` (link 0 a clock after ``coef``), and the hold that keeps samples out
-    until a write has passed the last link. Returns ``(links, hold_nx)``: samples are held off
-    at the clock after one where ``hold_nx`` is high.
+    after link ``g - 1``, and the hold that keeps samples out until a write has passed the
+    last link. Returns ``(links, hold_nx)``: samples are held off at the clock after one where
+    ``hold_nx`` is high.
 
     ``read_after``: a sample accepted at an edge reads its coefficients in the
     ``read_after``-th clock after it (2 in the one-lane design, whose template copies come
     from the register ``k``; 1 in the lanes design, whose copies load as the sample is taken).
+    Link 0 loads ``read_after`` clocks after ``coef`` (``coef.ready`` is 1), so that a sample
+    accepted at the very edge that takes a write (``i.ready`` is a register and cannot see
+    ``coef.valid``) still reads the old coefficients: it is ordered before the write.
     """
     # One write bus to all the coefficient memories was their only wide shared net, and the
     # placer kept the 64 of them together by it, far from their DSP blocks (4.6 ns of route
@@ -285,16 +291,19 @@ def _coef_chain(m: Module, coef, groups: int, read_after: int = 2):
     # synthesis cannot merge them back into one.
     link_shape = data.StructLayout({"valid": unsigned(1), **dict(COEF_WRITE.members)})
     links = [Signal(link_shape, name=f"wlink{g}") for g in range(groups)]
-    m.d.sync += [links[0].valid.eq(coef.valid & coef.ready),
-                 links[0].addr.eq(coef.payload.addr), links[0].data.eq(coef.payload.data)]
-    m.d.sync += [links[g].eq(links[g - 1]) for g in range(1, groups)]
-    # A write taken at edge e reaches the last group's memory at edge e + groups; a sample
-    # reads its coefficients in the read_after-th clock after it is accepted (it sees the
-    # writes up to the edge that clock starts at), so none is accepted at edges e + 1 .. e +
-    # groups - read_after (edge e itself is held off by coef.valid): `left` counts them down.
+    # registers before link 0: the write's own (edge e) and read_after - 1 more
+    chain = [Signal(link_shape, name=f"wpre{i}") for i in range(read_after - 1)] + links
+    m.d.sync += [chain[0].valid.eq(coef.valid & coef.ready),
+                 chain[0].addr.eq(coef.payload.addr), chain[0].data.eq(coef.payload.data)]
+    m.d.sync += [chain[g].eq(chain[g - 1]) for g in range(1, len(chain))]
+    # A write taken at edge e reaches the last group's memory at edge e + groups + read_after
+    # - 1; a sample accepted at edge a reads its coefficients in the clock that starts at edge
+    # a + read_after - 1 and sees the writes up to that edge, so it needs a >= e + groups:
+    # none is accepted at e + 1 .. e + groups - 1. `full` is set at the edge after one where
+    # hold_nx is high: at e by coef.valid, then at e + 1 .. e + groups - 2 by `left`.
     left = Signal(range(max(2, groups)))
     with m.If(coef.valid):
-        m.d.sync += left.eq(max(0, groups - read_after))
+        m.d.sync += left.eq(groups - 1)
     with m.Elif(left != 0):
         m.d.sync += left.eq(left - 1)
     return links, coef.valid | (left > 1)
@@ -433,10 +442,10 @@ class MatchedFilter(wiring.Component):
         (``ready`` low) until that frame starts, so a testbench or a host can give the surface
         ahead of the samples (with ``surface_ahead``; without it ``ready`` is 1).
     coef : In(stream.Signature(COEF_WRITE))
-        Coefficient writes ``h[k][j]`` at ``addr = k * L_MAX + j``. A write takes priority over
-        samples: ``i.ready`` is low on its clock (and, at one lane, on the 14 after, while it
-        travels to the memories; see Notes). Write the bank between frames (a sample reads its
-        coefficients two clocks after it is accepted).
+        Coefficient writes ``h[k][j]`` at ``addr = k * L_MAX + j``, taken at once
+        (``ready`` is 1). A write holds the samples: ``i.ready`` is low on the clocks after
+        it while it travels to the memories (see Notes); a sample accepted at the write's own
+        edge reads the old coefficients. Write the bank between frames.
     cfg : In(config_signature("filter"))
         ``out_shift``, ``bin_offset``, ``bin_len``.
     templates : In(unsigned(5))
@@ -460,9 +469,9 @@ class MatchedFilter(wiring.Component):
     asynchronous read or the last stage), and ``i.ready`` (registered, no path from ``o.ready``)
     is low while ``LATENCY + 1`` accepted samples are not yet taken at ``o``, so at most that
     many sit between input and consumer, as in a stalled pipeline of ``LATENCY`` registers.
-    ``i.ready`` is also low on a clock with a coefficient write and the 14 after: a write
-    travels a chain of registers, one per group of four taps, and reaches the last group's
-    memories 16 clocks after it was taken (so that no bus is shared by all 64).
+    ``i.ready`` is also low on the 15 clocks after a coefficient write: a write travels a
+    chain of registers, one per group of four taps, and reaches the last group's memories 17
+    clocks after it was taken (so that no bus is shared by all 64).
 
     Template selection counts samples, with no divider: when the frame reaches sample
     ``s + bin_offset`` it switches to template 1 (``min(1, K - 1)``), then one template further

@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from test_hdl_detect import expected
-from test_hdl_matched_filter import S16_HI, S16_LO, coef_source
+from test_hdl_matched_filter import S16_HI, S16_LO, after_first_write, coef_source
 from test_hdl_peak_detect import check_results, detector
 
 from hdl.detect import MIN_BIN_OFFSET, FilterDetect
@@ -62,7 +62,7 @@ def sample_source(frames, pattern) -> Source:
     words = lane_words(frames, LANES)
     data = {f"x.{p}": words["values"][:, p] for p in range(LANES)}
     data.update({k: words[k] for k in ("count", "first", "last")})
-    return Source(filter_in_layout(LANES), data, pattern)
+    return Source(filter_in_layout(LANES), data, after_first_write(pattern))
 
 
 def per_sample(got: dict) -> SimpleNamespace:

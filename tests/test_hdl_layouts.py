@@ -88,7 +88,7 @@ class TestPacking:
         save_bundle(tmp_path / "b.npz", spec, {"x": np.arange(3)})
         got, arrays = load_bundle(tmp_path / "b.npz")
         assert got == {"a": [1, 2], "p": {"kind": "random", "p": 0.5, "on": 1, "off": 0,
-                                          "seed": 3}}
+                                          "seed": 3, "start": 0}}
         assert arrays["x"].tolist() == [0, 1, 2]
 
 
@@ -106,11 +106,17 @@ class TestPattern:
         never = Pattern("never").bits()
         assert not any(next(never) for _ in range(10))
 
+    def test_start_delays_the_pattern(self):
+        bits = Pattern("periodic", on=1, off=1, start=3).bits()
+        assert [next(bits) for _ in range(7)] == [False] * 3 + [True, False, True, False]
+        assert Pattern("random", p=0.5, seed=4, start=2).with_seed(9).start == 2
+
     @pytest.mark.parametrize(("kwargs", "message"), [
         ({"kind": "sometimes"}, "kind must be 'always', 'never', 'random' or 'periodic', "
                                 "not 'sometimes'"),
         ({"kind": "random", "p": 0.0}, r"p must be in \(0, 1\], not 0.0"),
         ({"kind": "periodic", "on": 0}, "periodic needs on >= 1 and off >= 0, not 0, 0"),
+        ({"start": -1}, "start must be an integer >= 0, not -1"),
     ])
     def test_bad_arguments(self, kwargs, message):
         with pytest.raises(ValueError, match=f"^{message}$"):

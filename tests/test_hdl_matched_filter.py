@@ -9,7 +9,7 @@ with backpressure.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -53,8 +53,9 @@ class Case:
 def coef_source(bank: Bank) -> Source:
     """The bank's writes, the last template first, so that the last write is tap ``L - 1`` of
     template 0; before them all that tap is written with another value. The first sample,
-    offered all along, is taken as soon as the filter lets it after the last write, and reads
-    template 0 at once: it sees the right tap only if the write chain's hold is long enough."""
+    offered from the clock after the first write (:func:`after_first_write`), is taken as soon
+    as the filter lets it after the last write, and reads template 0 at once: it sees the right
+    tap only if the write chain's hold is long enough."""
     k, j = np.meshgrid(np.arange(bank.K)[::-1], np.arange(bank.L), indexing="ij")
     last = int(bank.coefs[0, -1])
     other = last ^ 0x5555 if last >= 0 else ~last
@@ -63,11 +64,18 @@ def coef_source(bank: Bank) -> Source:
                   PLAIN)
 
 
+def after_first_write(pattern: Pattern) -> Pattern:
+    """``pattern`` offering its first beat a clock after :func:`coef_source`'s first write: a
+    sample taken at the very edge that takes a write is ordered before it (``i.ready`` cannot
+    see ``coef.valid``) and would read the coefficients from before the bank."""
+    return replace(pattern, start=pattern.start + 1)
+
+
 def sample_source(frames, pattern) -> Source:
     x = np.concatenate(frames).astype(np.int64)
     first = np.concatenate([np.arange(len(f)) == 0 for f in frames])
     last = np.concatenate([np.arange(len(f)) == len(f) - 1 for f in frames])
-    return Source(FILTER_IN, {"x": x, "first": first, "last": last}, pattern)
+    return Source(FILTER_IN, {"x": x, "first": first, "last": last}, after_first_write(pattern))
 
 
 def traffic(case: Case, source=PLAIN, sink=PLAIN):

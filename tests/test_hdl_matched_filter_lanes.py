@@ -16,7 +16,14 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_hdl_matched_filter import S16_HI, S16_LO, Case, check, coef_source
+from test_hdl_matched_filter import (
+    S16_HI,
+    S16_LO,
+    Case,
+    after_first_write,
+    check,
+    coef_source,
+)
 
 from hdl.detect import MIN_BIN_OFFSET
 from hdl.matched_filter import (
@@ -81,7 +88,8 @@ def lane_traffic(case: LaneCase, lanes: int, taps_max: int, source=PLAIN, sink=P
     return {
         "sources": {
             "coef": coef,
-            "i": Source(filter_in_layout(lanes), samples, source, changes=changes),
+            "i": Source(filter_in_layout(lanes), samples, after_first_write(source),
+                        changes=changes),
             "surface": Source(SURFACE, {"n": s, "tag": frame_tags(len(s))}, PLAIN),
         },
         "sinks": {"o": Sink(filter_out_layout(lanes), sink)},

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import itertools
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +53,9 @@ class Pattern:
         ``periodic`` only, on >= 1, off >= 0.
     seed : int
         ``random`` only: the generator's seed.
+    start : int
+        Clocks at the start with no beat offered (or not ready), before the pattern begins:
+        a stream that must come after another one's first beat.
     """
 
     kind: str = "always"
@@ -60,6 +63,7 @@ class Pattern:
     on: int = 1
     off: int = 0
     seed: int = 0
+    start: int = 0
 
     def __post_init__(self):
         if self.kind not in ("always", "never", "random", "periodic"):
@@ -69,9 +73,14 @@ class Pattern:
             raise ValueError(f"p must be in (0, 1], not {self.p!r}")
         if self.kind == "periodic" and (self.on < 1 or self.off < 0):
             raise ValueError(f"periodic needs on >= 1 and off >= 0, not {self.on!r}, {self.off!r}")
+        if not isinstance(self.start, int) or self.start < 0:
+            raise ValueError(f"start must be an integer >= 0, not {self.start!r}")
 
     def bits(self):
         """An endless iterator of bools, one per clock."""
+        return itertools.chain(itertools.repeat(False, self.start), self._bits())
+
+    def _bits(self):
         if self.kind in ("always", "never"):
             return itertools.repeat(self.kind == "always")
         if self.kind == "periodic":
@@ -85,7 +94,7 @@ class Pattern:
 
     def with_seed(self, seed: int) -> Pattern:
         """The same pattern with another seed (so several streams do not move in lock-step)."""
-        return Pattern(self.kind, self.p, self.on, self.off, seed)
+        return replace(self, seed=seed)
 
 
 PLAIN = Pattern()
