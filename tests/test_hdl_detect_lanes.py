@@ -130,7 +130,7 @@ def test_verilator(tmp_path, lookahead, traffic_name):
 #: The measured many-lane builds (``docs/figures/fpga.json``): their Verilator builds take
 #: minutes each, so they run only when ``ALBCAP_SLOW_TESTS=1`` asks.
 BIG_BUILDS = [(16, 8, 0, "idle"), (16, 8, 28, "backpressure"), (4, 32, 0, "backpressure"),
-              (8, 16, 0, "idle")]
+              (8, 16, 0, "idle"), (10, 12, 0, "backpressure")]
 
 
 @pytest.mark.skipif(os.environ.get("ALBCAP_SLOW_TESTS") != "1",
