@@ -266,6 +266,33 @@ class TestAmaranthSim:
         check(res, Case(bank, cfg, frames, [-1, 2, 1]))
         assert len(res.sources["surface"]["clock"]) == 3
 
+    def test_a_sample_at_a_writes_own_edge_reads_the_old_bank(self):
+        """``i.ready`` cannot see ``coef.valid``: a sample offered with the first write is taken
+        at its edge and reads the coefficients from before it (zeros after reset: y = 0),
+        though that write is tap ``L - 1`` of template 0 (the one a frame's first sample
+        meets) in the first group of taps, the first link's (so the one-lane chain needs its
+        extra first register); every later sample waits for the whole bank and matches the
+        model."""
+        rng = np.random.default_rng(11)
+        bank = Bank(rng.integers(-3000, 3000, (2, 4)).astype(np.int16))
+        cfg = Config(out_shift=4, bin_offset=24, bin_len=3)
+        frames = [rng.integers(-500, 500, 40).astype(np.int16)]
+        k, j = np.meshgrid(np.arange(bank.K), np.arange(bank.L)[::-1], indexing="ij")
+        writes = Source(COEF_WRITE, {"addr": (k * L_MAX + j).ravel(),
+                                     "data": bank.coefs[:, ::-1].ravel().astype(np.int64)},
+                        PLAIN)
+        samples = replace(sample_source(frames, PLAIN), pattern=PLAIN)  # from clock 0
+        res = simulate(MatchedFilter(), sources={
+            "coef": writes, "i": samples,
+            "surface": Source(SURFACE, {"n": [30], "tag": [0]}, PLAIN)},
+            sinks={"o": Sink(FILTER_OUT, PLAIN)},
+            static={**cfg_ports(cfg, "filter"), "templates": bank.K, "taps": bank.L})
+        assert res.sources["i"]["clock"][0] == res.sources["coef"]["clock"][0]
+        want, _ = Case(bank, cfg, frames, [30]).expected()
+        got = res.sinks["o"]["y"]
+        assert want[0] != 0 and got[0] == 0  # with the new tap it would be want[0]
+        assert np.array_equal(got[1:], want[1:])
+
     def test_surface_not_ahead_is_always_ready(self):
         # without surface_ahead (the join's filter) `ready` is 1: a message for a frame not yet
         # started is taken at once and lost, so frame 1 keeps template 0; the join never sends

@@ -11,7 +11,7 @@ Each case runs plain, with idle insertion and with backpressure.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -27,6 +27,7 @@ from test_hdl_matched_filter import (
 
 from hdl.detect import MIN_BIN_OFFSET
 from hdl.matched_filter import (
+    COEF_WRITE,
     LATENCY,
     SURFACE,
     MatchedFilter,
@@ -221,6 +222,27 @@ class TestAmaranthSim:
                        **lane_traffic(case, lanes, taps_max))
         assert np.abs(case.expected()[0]).max() < (1 << 23) - 1
         check(per_sample(res, lanes), case)
+
+    def test_a_beat_at_a_writes_own_edge_reads_the_old_bank(self):
+        """As the one-lane design (``test_hdl_matched_filter``): a beat offered with the first
+        write, tap ``L - 1`` of template 0 (lane 0's first link), is taken at its edge and
+        reads the coefficients from before it (zeros after reset); the rest match the model."""
+        rng = np.random.default_rng(12)
+        bank = Bank(rng.integers(-3000, 3000, (2, 4)).astype(np.int16))
+        cfg = Config(out_shift=4, bin_offset=24, bin_len=3)
+        frames = random_frames(rng, [40], rails=0)
+        case = LaneCase(bank, cfg, frames, [30], banks=[bank])
+        tr = lane_traffic(case, 2, 4)
+        k, j = np.meshgrid(np.arange(bank.K), np.arange(bank.L)[::-1], indexing="ij")
+        tr["sources"]["coef"] = Source(COEF_WRITE, {
+            "addr": (k * L_MAX + j).ravel(), "data": bank.coefs[:, ::-1].ravel().astype(np.int64)})
+        tr["sources"]["i"] = replace(tr["sources"]["i"], pattern=PLAIN)  # from clock 0
+        res = simulate(MatchedFilter(lanes=2, taps_max=4), **tr)
+        assert res.sources["i"]["clock"][0] == res.sources["coef"]["clock"][0]
+        want, _ = case.expected()
+        got = per_sample(res, 2).sinks["o"]["y"]
+        assert want[0] != 0 and got[:2].tolist() == [0, 0]
+        assert np.array_equal(got[2:], want[2:])
 
     @pytest.mark.parametrize("s, used", [(24, True), (23, False)])
     def test_surface_apply(self, s, used):
