@@ -64,6 +64,15 @@ def coef_source(bank: Bank) -> Source:
                   PLAIN)
 
 
+def first_link_writes(bank: Bank) -> Source:
+    """The bank's writes, template 0 first and each template's tap ``L - 1`` first: with ``L
+    <= 4`` the first write is the tap a frame's first sample meets, in the first link's group
+    (so a sample taken at that write's edge shows whether it read the old bank)."""
+    k, j = np.meshgrid(np.arange(bank.K), np.arange(bank.L)[::-1], indexing="ij")
+    return Source(COEF_WRITE, {"addr": (k * L_MAX + j).ravel(),
+                               "data": bank.coefs[:, ::-1].ravel().astype(np.int64)}, PLAIN)
+
+
 def after_first_write(pattern: Pattern) -> Pattern:
     """``pattern`` offering its first beat a clock after :func:`coef_source`'s first write: a
     sample taken at the very edge that takes a write is ordered before it (``i.ready`` cannot
@@ -277,13 +286,9 @@ class TestAmaranthSim:
         bank = Bank(rng.integers(-3000, 3000, (2, 4)).astype(np.int16))
         cfg = Config(out_shift=4, bin_offset=24, bin_len=3)
         frames = [rng.integers(-500, 500, 40).astype(np.int16)]
-        k, j = np.meshgrid(np.arange(bank.K), np.arange(bank.L)[::-1], indexing="ij")
-        writes = Source(COEF_WRITE, {"addr": (k * L_MAX + j).ravel(),
-                                     "data": bank.coefs[:, ::-1].ravel().astype(np.int64)},
-                        PLAIN)
         samples = replace(sample_source(frames, PLAIN), pattern=PLAIN)  # from clock 0
         res = simulate(MatchedFilter(), sources={
-            "coef": writes, "i": samples,
+            "coef": first_link_writes(bank), "i": samples,
             "surface": Source(SURFACE, {"n": [30], "tag": [0]}, PLAIN)},
             sinks={"o": Sink(FILTER_OUT, PLAIN)},
             static={**cfg_ports(cfg, "filter"), "templates": bank.K, "taps": bank.L})

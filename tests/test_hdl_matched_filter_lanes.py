@@ -23,11 +23,11 @@ from test_hdl_matched_filter import (
     after_first_write,
     check,
     coef_source,
+    first_link_writes,
 )
 
 from hdl.detect import MIN_BIN_OFFSET
 from hdl.matched_filter import (
-    COEF_WRITE,
     LATENCY,
     SURFACE,
     MatchedFilter,
@@ -233,9 +233,7 @@ class TestAmaranthSim:
         frames = random_frames(rng, [40], rails=0)
         case = LaneCase(bank, cfg, frames, [30], banks=[bank])
         tr = lane_traffic(case, 2, 4)
-        k, j = np.meshgrid(np.arange(bank.K), np.arange(bank.L)[::-1], indexing="ij")
-        tr["sources"]["coef"] = Source(COEF_WRITE, {
-            "addr": (k * L_MAX + j).ravel(), "data": bank.coefs[:, ::-1].ravel().astype(np.int64)})
+        tr["sources"]["coef"] = first_link_writes(bank)
         tr["sources"]["i"] = replace(tr["sources"]["i"], pattern=PLAIN)  # from clock 0
         res = simulate(MatchedFilter(lanes=2, taps_max=4), **tr)
         assert res.sources["i"]["clock"][0] == res.sources["coef"]["clock"][0]
