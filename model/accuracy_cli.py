@@ -160,10 +160,12 @@ def _cmd_bench_speed(args) -> int:
           f"{res['samples_per_waveform_mean']:g} samples mean), {res['repeats']} repeats, "
           f"Numba threads {res['numba_threads']}")
     chip = res["onchip"]
-    print(f"{'method':16s} {'min us/wf':>10s} {'median':>10s} {'min/chip':>9s} {'med/chip':>9s}")
+    print(f"{'method':16s} {'waveforms':>9s} {'min us/wf':>10s} {'median':>10s} "
+          f"{'min/chip':>9s} {'med/chip':>9s}")
     for m in res["methods"]:
-        print(f"{m['name']:16s} {m['us_min']:>10.2f} {m['us_median']:>10.2f} "
-              f"{_f(m['ratio_min'], 1, 1):>9s} {_f(m['ratio_median'], 1, 1):>9s}")
+        print(f"{m['name']:16s} {m['n_waveforms']:>9d} {m['us_min']:>10.2f} "
+              f"{m['us_median']:>10.2f} {_f(m['ratio_min'], 1, 1):>9s} "
+              f"{_f(m['ratio_median'], 1, 1):>9s}")
     if chip:
         print(f"on-chip (FPGA, {chip['key']}): {chip['us_per_waveform']:g} us per waveform "
               f"({chip['clocks_per_waveform']} clocks at {chip['fmax_mhz']:g} MHz)")
@@ -284,8 +286,8 @@ def register_bench(bench_sub) -> None:
     p.add_argument("--json", action="store_true", help="print the JSON instead of a table")
     p.add_argument("--repeats", default="7", help="passes over the batch per method (default 7)")
     p.add_argument("--shots", default="250", help="shots per depth, 1-26 m (default 250)")
-    p.add_argument("--methods", help="comma-separated method names (default: peaks_float, "
-                                     "adaptive_mf, fixed_mf)")
+    p.add_argument("--methods", help="comma-separated method names (default: every waveform "
+                                     "method; the fits on their first 20 shots per depth)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="also write the JSON here (docs/figures/speed.json is what "
                                  "the targets of the unstretched variant use)")

@@ -15,6 +15,7 @@ from model import accuracy
 from model.accuracy import (
     Point,
     Sweep,
+    best_offline,
     chunk_seed,
     depth_stats,
     load_methods,
@@ -166,6 +167,33 @@ class TestSummaryAndTargets:
         row = {x["id"]: x for x in targets(ms, fpga, {"peaks_float": 1.0})["targets"]}[
             "onchip_speed"]
         assert row["value"] == pytest.approx(1250.0)
+
+    def test_best_offline_is_the_most_accurate_float_method(self):
+        """The chip is compared with the float, non-photon method of lowest RMSE, whatever
+        its speed: here the slow fit, not the fast one."""
+        fast = [_row(1.0, 0.0, 0.010, 1.0), _row(26.0, 0.0, 0.010, 1.0)]
+        fit = [_row(1.0, 0.0, 0.007, 1.0), _row(26.0, 0.0, 0.007, 1.0)]
+        chip = [_row(1.0, 0.0, 0.011, 1.0), _row(26.0, 0.0, 0.011, 1.0)]
+        photon = {**_method("photon_hist", fit, 1.0), "photon": True}
+        photon["summary"] = {**photon["summary"], "rmse_m": 0.001}
+        ms = [_method("adaptive_mf", chip, 10.0, bit_exact=True),
+              _method("peaks_float", fast, 40.0), _method("gpg_lm", fit, 16000.0), photon]
+        assert best_offline(ms)["name"] == "gpg_lm"
+        assert best_offline(ms[:1]) is None
+        fpga = {"us_per_waveform": 0.8, "lanes": 10, "fmax_mhz": 116.3, "key": "k"}
+        rows = {x["id"]: x for x in targets(ms, fpga, {"peaks_float": 40.0,
+                                                        "gpg_lm": 16000.0})["targets"]}
+        assert rows["onchip_speed"]["method"] == "adaptive_mf vs gpg_lm"
+        assert rows["onchip_speed"]["value"] == pytest.approx(20000.0)
+        assert rows["onchip_rmse"]["value"] == pytest.approx(11 / 7, abs=1e-3)
+
+    def test_unstretched_variant_runs_every_waveform_method(self):
+        """So that its best offline method is chosen among all of them."""
+        from model.accuracy import ISSUE_METHODS, UNSTRETCHED_METHODS
+
+        known = load_methods()
+        waveform = {m for m in ISSUE_METHODS if m in known and not known[m].photon}
+        assert waveform <= set(UNSTRETCHED_METHODS)
 
 
 class TestSeedsAndTasks:
