@@ -641,6 +641,10 @@ def distinct_templates(bank: Bank, max_loss_db: float = 0.0) -> tuple[list[int],
     return [0, *range(lead + 1, last + 1)], lead
 
 
+#: Losses below this are the rounding of the sums, not a mismatch, dB.
+_LOSS_ROUNDING_DB = 1e-12
+
+
 def mismatch_loss_db(a, b) -> float:
     """Matched-filter SNR lost by filtering the shape of template ``a`` with template ``b``
     instead of itself, dB (>= 0; the same either way round), in white noise at the best lag:
@@ -653,7 +657,10 @@ def mismatch_loss_db(a, b) -> float:
     peak = float(np.max(np.correlate(a, b, "full")))
     if peak <= 0:
         return math.inf
-    return max(0.0, -10.0 * math.log10(peak ** 2 / energy))
+    loss = -10.0 * math.log10(peak ** 2 / energy)
+    # a template against a scaled copy of itself: the correlation and the energies are summed
+    # in different orders, so the ratio can miss 1 by a few ulp (2.4e-15 dB on one machine)
+    return loss if loss > _LOSS_ROUNDING_DB else 0.0
 
 
 def _write_atomic(path: Path, text: str) -> None:

@@ -408,7 +408,12 @@ class TestGpgColumn:
         at 2.4-6 times the level between the returns, converged on Gaussians of 1.4-3.4 times
         the returns over a column 1.4-2 times the waveform's peak below zero: shots 47 and 69
         gave 0.75 m and 0.79 m, confidently. Now the start without column fits them, within the
-        bound; shots the rule does not touch keep their answer to the bit."""
+        bound; shots the rule does not touch keep their answer to the bit.
+
+        Where the rule-off fits land depends on the machine's rounding (an iterative fit from a
+        start far from the answer; on the AMD EPYC of the twentieth session both converged
+        within the bound without the rule), so the premise is checked only where it holds; the
+        invariant with the rule on is checked everywhere."""
         shots = self.suite_shots("saturated_bottom", 0, 1.5, [47, 69, 0, 1, 2])
         m = get_method("gpg_lm")()
         m.prepare(shots.setup)
@@ -417,10 +422,14 @@ class TestGpgColumn:
         assert np.all(np.abs(new.depth_m - 1.5) <= m.error_bound_m)
         monkeypatch.setattr(m, "column_dip", np.inf)  # the rule off: the code before it
         old = run_quiet(m, shots)
-        # the premise: without the rule, the first two are confident wrong depths
-        assert (np.abs(old.depth_m - 1.5) > m.error_bound_m).tolist() == [True, True] + [False] * 3
         assert old.confident.all()
         assert np.array_equal(new.depth_m[2:], old.depth_m[2:])
+        # the premise: without the rule, the first two are confident wrong depths
+        wrong = (np.abs(old.depth_m - 1.5) > m.error_bound_m).tolist()
+        if wrong[:2] != [True, True]:
+            pytest.skip(f"the rule-off fits of shots 47 and 69 land at {old.depth_m[:2]} m on "
+                        "this machine: the failure the rule fixes is not reproduced here")
+        assert wrong == [True, True] + [False] * 3
 
     def test_keeps_good_fits_whose_column_dips(self, monkeypatch):
         """The suite's ``shallow`` 1.5 m shots 41, 33 and 48, right fits of Table 3's start
