@@ -293,28 +293,33 @@ def elaborate(top, platform):
         # of the three beats' flags before the decision put the port's beat (the filter's
         # output) five LUTs from go, the pipeline's worst path (6.64 ns, 4.7 of it routing).
         # A beat loaded now (skid or port) goes on the tag match only if it is not a first.
-        # `busy_nx` (busy after this clock: D1's last beat goes now, or a result waits on)
-        # chooses last, between the decisions worked out for busy and for not busy: as a
-        # term of each beat's decision, D1's `last` -> `go & last` -> busy_nx -> the
-        # decision -> go was five LUTs, the 3 x 3 interleaved build's worst path (8.34 ns).
+        # "Busy after this clock" (D1's last beat goes now, or a result waits on) chooses
+        # between the decisions worked out for busy and for not busy: as a term of each beat's
+        # decision, D1's `last` -> `go & last` -> busy after -> the decision -> go was five
+        # LUTs, the 3 x 3 interleaved build's worst path (8.34 ns). And go's own loop (go ->
+        # D1 free, and busy after -> go) is one LUT: the decision is worked out for D1's beat
+        # going now (D1 takes the next beat; busy after if it was a last) and for it staying
+        # (D1 takes one only if it is empty), and go picks. With go inside the cone, go ->
+        # busy -> the port's beat -> go was six LUTs, the detector's worst path alone (6.34
+        # ns, 157.7 MHz).
         busy = Signal()
-        busy_nx = (go & d1.last) | (busy & ~(top.o.valid & top.o.ready))
         tag_eq = Signal(name="tag_eq")  # thr_tag == d1_tag (below: == last_tag)
-
-        def go_if(busy_next: bool, free_now):
-            def may_go(b, loaded):
-                ok = ~b.needs | (tag_eq & (~b.beat.first if loaded else 1))
-                return ok & ~b.beat.last if busy_next else ok
-            take = Mux(s_valid, may_go(skid, True), top.i.valid & may_go(inb, True))
-            return take if free_now is True else Mux(free_now, take, d1_valid & may_go(h1, False))
-        # go's loop (go -> free and busy_nx -> go) is one LUT: the decision is worked out for
-        # D1's beat going now (free, busy after it if it is a last) and for it staying (free
-        # only if D1 is empty), and go picks. With go inside the cone, go -> busy -> the port's
-        # beat -> go was six LUTs, the detector's worst path alone (6.34 ns, 157.7 MHz).
-        stays = Signal.like(busy, name="busy_stays")
+        stays = Signal(name="busy_stays")  # busy after this clock, if D1's beat stays
         m.d.comb += stays.eq(busy & ~(top.o.valid & top.o.ready))
-        if_goes = Mux(d1.last | stays, go_if(True, True), go_if(False, True))
-        if_stays = Mux(stays, go_if(True, ~d1_valid), go_if(False, ~d1_valid))
+
+        def may_go(b, loaded, busy_next: bool):
+            ok = ~b.needs | (tag_eq & (~b.beat.first if loaded else 1))
+            return ok & ~b.beat.last if busy_next else ok
+
+        def taken(busy_next: bool):  # the beat D1 takes now (the skid's, else the port's)
+            return Mux(s_valid, may_go(skid, True, busy_next),
+                       top.i.valid & may_go(inb, True, busy_next))
+
+        def kept(busy_next: bool):  # D1's own beat, or the one it takes if it is empty
+            return Mux(~d1_valid, taken(busy_next), d1_valid & may_go(h1, False, busy_next))
+
+        if_goes = Mux(d1.last | stays, taken(True), taken(False))
+        if_stays = Mux(stays, kept(True), kept(False))
         m.d.sync += go.eq(Mux(go, if_goes, if_stays))
 
         st_beat, st_base, st_tag, st_valid = d1, d1_base, d1_tag, fresh
