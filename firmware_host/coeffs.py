@@ -33,6 +33,7 @@ __all__ = [
     "MERGE_LOSS_DB",
     "MIN_SURF_X",
     "MIN_THR_SIGMAS",
+    "STITCH_X_RANGE",
     "SURVEY_K_THR_Q4",
     "SURVEY_NOISE_LOG2",
     "SceneBank",
@@ -48,6 +49,7 @@ __all__ = [
     "read_bank_hex",
     "save_bank_json",
     "scene_bank",
+    "stitch_normalize",
     "survey_registers",
     "survey_scene",
     "write_bank_hex",
@@ -64,6 +66,10 @@ SURVEY_PRE_SURFACE_S = 200e-9
 #: one, all weak) but its extra depths near the limit scatter by metres within the fixed
 #: filter's 3 m bound, and the on-chip RMSE over 1-26 m grew eightfold (``docs/methods.md``).
 SURVEY_K_THR_Q4 = 128
+#: Range of the stitched input by stitch rule (``model.stitch``), for the filter's output shift
+#: (:func:`out_shift_for`): ``linear`` in high-gain LSB, baselines removed; ``paper`` the 0..765
+#: codes of seed 000 eq. 1.
+STITCH_X_RANGE = {"linear": (-800, 24700), "paper": (0, 765)}
 #: Neighbouring templates of a scene's bank that lose at most this much matched SNR for each
 #: other (``mismatch_loss_db``, 0.05 dB: 1.2 % of the SNR) share a run of bins
 #: (:func:`distinct_templates`): a switch to a template that buys no more than that is only a
@@ -406,12 +412,56 @@ class SceneBank:
     min_surf: int
 
 
+def stitch_normalize(stitch: str, normalize: str | None, n_templates: int) -> str:
+    """The template normalization of a bank for the stitch rule ``stitch``.
+
+    Parameters
+    ----------
+    stitch : {"linear", "paper"}
+        The stitch register's rule the bank is for.
+    normalize : {"noise", "dc", "energy"} or None
+        Asked for; ``None`` takes the rule's default: ``noise`` for ``linear``, ``dc`` for
+        ``paper``.
+    n_templates : int
+        K of the bank (a bank of one template never switches).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ValueError
+        For an unknown rule or normalization, and for ``paper`` with templates of unequal
+        sums of taps (``noise``, ``energy``) and more than one template. Eq. 1 keeps the
+        high-gain channel's baseline (some codes) in every sample, so a switch between
+        templates whose sums differ steps the filter's output by the baseline times the
+        difference, in noise as much as in signal, and the detector's largest rise takes
+        the step for a bottom: with the noise-normalized survey bank (sums 367 694 to
+        709 855) the adaptive filter "found" a bottom in every shot from 26 to 40 m, all
+        confident, up to 7 m off (``docs/methods.md``, "The paper stitch and the bank").
+    """
+    if stitch not in STITCH_X_RANGE:
+        raise ValueError(f"stitch must be 'linear' or 'paper', not {stitch!r}")
+    if normalize is None:
+        return "dc" if stitch == "paper" else "noise"
+    if normalize not in ("noise", "dc", "energy"):
+        raise ValueError(f"normalize must be 'noise', 'dc' or 'energy', not {normalize!r}")
+    if stitch == "paper" and normalize != "dc" and n_templates > 1:
+        raise ValueError(
+            f"normalize={normalize!r} with the paper stitch and {n_templates} templates: eq. 1 "
+            f"keeps the high-gain baseline in every sample, so templates of unequal sums of "
+            f"taps step the filter output at each template switch and the detector takes the "
+            f"step for a bottom; use normalize='dc' (equal sums), the paper rule's default")
+    return normalize
+
+
 def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float = 3.0,
-               x_range: tuple[int, int] = (-800, 24700), bank_id: int = 0,
+               x_range: tuple[int, int] | None = None, bank_id: int = 0,
                mc_packets: int = 20000, mc_seed: int = 4242,
                adc_noise_lsb: float | None = None, min_bin_offset: int = 0,
-               merge_equal: bool = True, normalize: str = "noise",
-               merge_loss_db: float = MERGE_LOSS_DB) -> SceneBank:
+               merge_equal: bool = True, normalize: str | None = None,
+               merge_loss_db: float = MERGE_LOSS_DB, stitch: str = "linear") -> SceneBank:
     """Templates for a ``sim.scene.Scene``: its received pulse, stretched with depth.
 
     Template 0 is the received pulse (the emitted Gaussian through the receiver's Gaussian
@@ -434,8 +484,9 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         L.
     first_bin_m : float
         Depth where template 1 starts, m (template 0 serves shallower bottoms).
-    x_range : (int, int)
-        Range of the stitched input, for the output shift (default: the linear rule's).
+    x_range : (int, int), optional
+        Range of the stitched input, for the output shift (default: the rule's,
+        :data:`STITCH_X_RANGE`).
     mc_packets, mc_seed : int
         Photon packets per leg and seed of the Monte Carlo run (``montecarlo`` scenes only).
     adc_noise_lsb : float, optional
@@ -456,22 +507,29 @@ def scene_bank(scene, n_templates: int = 8, n_taps: int = 32, first_bin_m: float
         section 5, step 4): a blind band two samples wide for nothing. On an unstretched
         bottom every bin holds the pulse and the bank becomes the fixed filter (``K = 1``).
         ``False`` keeps all ``n_templates``.
-    normalize : {"noise", "dc", "energy"}
-        How the templates are scaled against each other (:func:`bank_from_templates`).
-        ``noise`` (default): the same output noise for the scene's floor
-        (:func:`filtered_floor_rms`, or ``adc_noise_lsb`` as white noise), so the detector's
+    normalize : {"noise", "dc", "energy"}, optional
+        How the templates are scaled against each other (:func:`bank_from_templates`); default the
+        rule's (:func:`stitch_normalize`: ``dc`` for ``paper``, whose baseline forbids unequal
+        sums). ``noise`` (the ``linear`` rule's default): the same output noise for the scene's
+        floor (:func:`filtered_floor_rms`, or ``adc_noise_lsb`` as white noise), so the detector's
         threshold from template 0's noise windows is the same number of deviations for every
-        template. Against ``dc`` (the same sum of taps; this bank's deepest template then
-        has half template 0's noise gain and its threshold twice the deviations) it found the
-        Monte Carlo bottom at 24 m in 180 of 200 shots against 27 and at 25 m in 135 against
-        5, the same shots from 3 to 21 m, and no bottom in 200 shots without one
-        (``docs/methods.md``, "Templates of equal noise gain"). The switch then steps the
-        filtered water column by the ratio of the two templates' sums; the detector refuses a
-        peak whose neighbours straddle a switch (spec section 5, step 4).
+        template. Against ``dc`` (the same sum of taps; this bank's deepest template then has half
+        template 0's noise gain and its threshold twice the deviations) it found the Monte Carlo
+        bottom at 24 m in 180 of 200 shots against 27 and at 25 m in 135 against 5, the same shots
+        from 3 to 21 m, and no bottom in 200 shots without one (``docs/methods.md``, "Templates of
+        equal noise gain"). The switch then steps the filtered water column by the ratio of the two
+        templates' sums; the detector refuses a peak whose neighbours straddle a switch (spec
+        section 5, step 4).
     merge_loss_db : float
         With ``merge_equal``, neighbours that lose at most this much SNR for each other count
         as equal too (:data:`MERGE_LOSS_DB`; 0: equal taps only).
+    stitch : {"linear", "paper"}
+        The stitch rule the bank is for (default ``linear``): it sets ``x_range`` and
+        ``normalize`` where they are not given.
     """
+    normalize = stitch_normalize(stitch, normalize, n_templates)
+    if x_range is None:
+        x_range = STITCH_X_RANGE[stitch]
     from sim.optics import refracted_angle
     from sim.stretching import law_for_scene
     from sim.waveform import bottom_kernel, resolve_fidelity

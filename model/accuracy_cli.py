@@ -1,12 +1,16 @@
 """Command-line front end of the accuracy study: ``bench accuracy|regimes|speed``, ``chart``.
 
 ``albcap bench accuracy [--quick] [--json]`` and ``albcap bench regimes [--quick] [--json]``
-write their JSON to ``docs/figures/accuracy.json`` and ``docs/figures/regimes.json`` (``--out``)
-and print a table (or, with ``--json``, the JSON). ``albcap chart`` reads them back and draws
-the charts; ``albcap chart --results docs/results.md`` also refreshes the page's generated
-tables. Sweeps run on Dask: local processes by default, ``--scheduler sync|threads|processes``
-or the address of a ``dask.distributed`` scheduler. ``albcap bench speed [--json]`` times
-methods serially on the sweep's ``unstretched`` batch (``model.speed``) and writes no file.
+print a table (or, with ``--json``, the JSON) and write the JSON to ``--out``; without it, the
+full default run writes ``docs/figures/accuracy.json`` or ``docs/figures/regimes.json``, the
+record ``docs/results.md`` is built from, and a partial run (``--quick``, ``--methods``,
+``--shots``, ``--depths`` or a ``--seed`` other than 0; not ``--scheduler``, which changes
+only the times) writes nothing, so as never to replace that record. ``albcap chart`` reads
+them back and draws the charts; ``albcap chart --results docs/results.md`` also refreshes the
+page's generated tables. Sweeps run on Dask: local processes by default,
+``--scheduler sync|threads|processes`` or the address of a ``dask.distributed`` scheduler.
+``albcap bench speed [--json]`` times methods serially on the sweep's ``unstretched`` batch
+(``model.speed``) and writes its JSON only to ``--out``.
 ``albcap bench builds [--json] [--out FILE]`` runs the on-chip path with the bank each measured
 FPGA build of the join can hold (``model.builds``).
 """
@@ -15,11 +19,14 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from pathlib import Path
 
 __all__ = ["register", "register_bench"]
 
 _LOCAL = ("sync", "threads", "processes")
+#: ``--seed`` of the recorded full runs.
+_SEED = 0
 _ADDRESS = re.compile(r"^([a-z]+://)?[\w.\-\[\]:]+:\d+$")
 
 
@@ -56,11 +63,63 @@ def _f(x, scale: float = 100.0, nd: int = 2) -> str:
     return "-" if x is None else f"{x * scale:.{nd}f}"
 
 
-def _write(path: str, res: dict) -> Path:
+def _write(path, res: dict) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(json.dumps(res, indent=1) + "\n")
     return p
+
+
+def _partial(args) -> list[str]:
+    """The options that make ``args`` of ``bench accuracy|regimes`` a partial run.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments of ``bench accuracy`` or ``bench regimes``.
+
+    Returns
+    -------
+    list of str
+        ``--quick``, ``--methods``, ``--shots`` and ``--depths`` as given, and ``--seed N``
+        for a seed other than that of the recorded runs; empty for the full default run
+        (``--scheduler`` changes only the times, so it is no part of this).
+    """
+    given = ["--quick"] if args.quick else []
+    given += [f"--{k}" for k in ("methods", "shots", "depths")
+              if getattr(args, k, None) is not None]
+    if args.seed != _SEED:
+        given.append(f"--seed {args.seed}")
+    return given
+
+
+def _destination(args, what: str) -> Path | None:
+    """Where ``bench accuracy|regimes`` writes its JSON.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments, with ``out``, ``quick``, ``seed`` and the run's options.
+    what : str
+        ``"accuracy"`` or ``"regimes"``.
+
+    Returns
+    -------
+    Path or None
+        ``--out`` if given; else ``docs/figures/{what}.json`` for the full default run and
+        ``None`` for a partial one (:func:`_partial`), which says so in one line on stderr: a
+        partial run would overwrite the record ``docs/results.md`` is built from.
+    """
+    if args.out:
+        return Path(args.out)
+    from .charts import FIGURES
+
+    partial = _partial(args)
+    if not partial:
+        return FIGURES / f"{what}.json"
+    print(f"albcap bench {what}: a partial run ({', '.join(partial)}) writes no JSON; "
+          f"--out FILE writes it", file=sys.stderr)
+    return None
 
 
 def _cmd_bench_accuracy(args) -> int:
@@ -73,7 +132,9 @@ def _cmd_bench_accuracy(args) -> int:
     res = bench_accuracy(quick=args.quick, scheduler=sched, progress=not args.no_progress,
                          names=names, n=n, depths=depths, seed=args.seed,
                          n_max={} if n is not None else None)
-    out = _write(args.out, res)
+    out = _destination(args, "accuracy")
+    if out is not None:
+        _write(out, res)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -88,7 +149,8 @@ def _cmd_bench_accuracy(args) -> int:
     for t in res["targets"]:
         print(f"target {'met    ' if t['met'] else 'NOT met'}: {t['text']} "
               f"({t['method']}: {t['value']})")
-    print(f"wrote {out}")
+    if out is not None:
+        print(f"wrote {out}")
     return 0
 
 
@@ -106,7 +168,9 @@ def _cmd_bench_regimes(args) -> int:
     n = n or (20 if args.quick else 100)
     res = bench_regimes(specs, n=n, quick=args.quick, scheduler=sched,
                         progress=not args.no_progress, seed=args.seed)
-    out = _write(args.out, res)
+    out = _destination(args, "regimes")
+    if out is not None:
+        _write(out, res)
     if args.json:
         print(json.dumps(res, indent=1))
     else:
@@ -119,7 +183,8 @@ def _cmd_bench_regimes(args) -> int:
         print(f"{len(res['violations'])} invariant violations")
         for v in res["violations"]:
             print(f"  {v}")
-        print(f"wrote {out}")
+        if out is not None:
+            print(f"wrote {out}")
     return 1 if res["violations"] else 0
 
 
@@ -237,19 +302,21 @@ def _cmd_chart(args) -> int:
     return 0
 
 
-def _common(p, what: str) -> None:
-    from .charts import FIGURES
-
+def _common(p, what: str, partial: str) -> None:
+    """The options ``bench accuracy`` and ``bench regimes`` share; ``partial`` lists, for
+    ``--out``'s help, the command's options that make a partial run (:func:`_partial`)."""
     p.add_argument("--json", action="store_true", help="print the JSON instead of a table")
-    p.add_argument("--quick", action="store_true", help="a small, stated set")
+    p.add_argument("--quick", action="store_true",
+                   help="a small, stated set (a partial run: no JSON without --out)")
     p.add_argument("--scheduler", default="processes",
                    help="sync, threads, processes (default) or a dask.distributed address")
     p.add_argument("--methods", help="comma-separated method names (default: all)")
     p.add_argument("--shots", help="shots per depth (or per regime point) for every method "
                                    "(default: the run's count, fewer for the slow fits)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=str(FIGURES / f"{what}.json"),
-                   help=f"JSON file written (default docs/figures/{what}.json)")
+    p.add_argument("--seed", type=int, default=_SEED, help=f"base seed (default {_SEED})")
+    p.add_argument("--out", help=f"write the JSON here; without it the full default run writes "
+                                 f"docs/figures/{what}.json and a partial one ({partial}, or "
+                                 f"a --seed other than {_SEED}) writes nothing")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
@@ -272,13 +339,13 @@ def register_bench(bench_sub) -> None:
     """Add ``albcap bench accuracy``, ``regimes``, ``speed`` and ``builds``."""
     p = bench_sub.add_parser("accuracy", help="bias, std, RMSE, detection and us/waveform of "
                                               "every method over a depth sweep (Dask)")
-    _common(p, "accuracy")
+    _common(p, "accuracy", "--quick, --methods, --shots or --depths")
     p.add_argument("--depths", help="comma-separated depths, m (default: 1..40 m, or the "
                                     "quick set)")
     p.set_defaults(func=_cmd_bench_accuracy)
     p = bench_sub.add_parser("regimes", help="stability suite: failure rates and invariants "
                                              "of every method where methods fail (Dask)")
-    _common(p, "regimes")
+    _common(p, "regimes", "--quick, --methods or --shots")
     p.set_defaults(func=_cmd_bench_regimes)
     p = bench_sub.add_parser("speed", help="us/waveform of methods on the sweep's unstretched "
                                            "batch, serially, min and median of repeats, "

@@ -53,8 +53,8 @@ BUILDS_FIGURES = FPGA_FIGURES.with_name("builds.json")
 METHOD = "adaptive_mf"
 #: The sweeps run: the accuracy study's unstretched side study and its Monte Carlo sweep.
 VARIANTS = ("unstretched", "main")
-#: Shots per depth: the accuracy study's side-study count (its full run), so the unstretched
-#: shots are the very ones of its table.
+#: Shots per depth: the first chunk (``model.accuracy.CHUNK``, seeded per chunk) of the
+#: accuracy study's unstretched sweep, so its shots are the very ones of that table.
 SHOTS = 250
 
 

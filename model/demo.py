@@ -53,8 +53,7 @@ def demo_rows(preset_name: str, depths, shots: int, seed: int, mode: str = "line
     scene = survey_scene(preset(preset_name))
     if shots < 1:
         raise ValueError(f"--shots must be >= 1, not {shots!r}")
-    x_range = (-800, 24700) if mode == "linear" else (0, 765)
-    sb = scene_bank(scene, n_templates=1 if fixed else 8, n_taps=64, x_range=x_range)
+    sb = scene_bank(scene, n_templates=1 if fixed else 8, n_taps=64, stitch=mode)
     cfg = Config(**survey_registers(sb, stitch_mode=1 if mode == "linear" else 0,
                                     bottom_rule=bottom_rule))
     # compile (or load) the filter-and-detector loop now, so that us/frame times the chain

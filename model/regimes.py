@@ -15,7 +15,15 @@ either a depth or a flagged non-detection. :func:`violations` lists every breach
   truth than ``Method.error_bound_m``, or any confident detection where there is no bottom
   (weak detections are flagged by the method and counted, ``weak_rate``, but held to no
   bound);
-* no hang: at most :data:`HANG_S_PER_WAVEFORM` seconds of ``estimate`` per shot.
+* no hang: at most :data:`HANG_S_PER_WAVEFORM` seconds of ``estimate`` per shot, averaged
+  over each chunk of shots (a batched method times its batch, not its shots).
+
+A hang is first ruled out by construction: every iterative method has a fixed bound (``gpg_lm`` and
+``weibull_eemd``: ``least_squares`` with ``max_nfev = 200``; ``weibull_eemd``: 4 EEMD trials, each
+sifting within PyEMD's cap (``EMD.MAX_ITERATION``); ``richardson_lucy``: 30 iterations; the chain
+and the peak methods: one pass). The timing above catches a slow method, not a stuck one, which
+would hold the bench; the tests run under a per-test timeout (``pyproject.toml``,
+``pytest-timeout``) so that a stuck method fails its test instead.
 
 A failure to detect is not a violation; it is what the failure-rate curves
 (``albcap bench regimes``, charted by ``albcap chart``) measure.

@@ -4,9 +4,9 @@
 shots of the accuracy sweep's ``unstretched`` variant (seed 000's own kind of bottom) at the
 summary depths 1-26 m, built by the accuracy module's own functions
 (:func:`model.accuracy.unstretched_sweep`, its task seeds and its method preparation), so
-the batch is the very one ``albcap bench accuracy`` scores (250 shots per depth in its full
-run). Everything runs serially in this process with Numba on one thread, as the sweep does, so
-a figure is per core.
+the batch is the very one ``albcap bench accuracy`` scores (its first chunk: 250 of the 1000
+shots per depth of its full run). Everything runs serially in this process with Numba on one
+thread, as the sweep does, so a figure is per core.
 
 Why not the sweep's own ``us_per_waveform``: its chunks run in parallel on a shared machine,
 and what the neighbours take lands in the figure (float peak detection measured 325-383 us per
@@ -48,8 +48,8 @@ METHODS_DEFAULT = ("peaks_float", "threshold", "gpg_lm", "weibull_eemd", "richar
 SHOTS_MAX = {"gpg_lm": 20, "weibull_eemd": 20}
 #: Repeats of the whole batch per method.
 REPEATS = 7
-#: Shots per depth: the accuracy sweep's side-study count in its full run (N_FULL // 4), so
-#: the batch is the sweep's own.
+#: Shots per depth: the first chunk (``model.accuracy.CHUNK``, seeded per chunk) of the
+#: accuracy sweep's unstretched study, so the batch is the sweep's own.
 SHOTS = 250
 #: The issue's speed target: the on-chip path at least this many times faster per waveform.
 TARGET_RATIO = 100.0
@@ -77,9 +77,9 @@ def _batch(shots: int, seed: int, specs):
 
 def reference_method(path=None) -> str | None:
     """The name of the best offline method on this bench's bottom: that of the recorded
-    accuracy run's ``unstretched`` variant (``albcap bench accuracy --out``, default
-    ``docs/figures/accuracy.json``), by :func:`model.accuracy.best_offline`; ``None`` without
-    such a record."""
+    accuracy run's ``unstretched`` variant (``albcap bench accuracy``'s full run,
+    ``docs/figures/accuracy.json`` by default), by :func:`model.accuracy.best_offline`;
+    ``None`` without such a record."""
     import json
 
     from . import accuracy as acc

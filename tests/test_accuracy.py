@@ -6,6 +6,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 
 import numpy as np
 import pytest
@@ -21,10 +22,12 @@ from model.accuracy import (
     load_methods,
     method_specs,
     run_sweeps,
+    study_base,
     summarize,
-    survey_base,
     targets,
+    unstretched_sweep,
 )
+from model.accuracy_cli import _scheduler
 from model.charts import render_results, result_tables, write_charts
 from model.regimes import REGIMES, bench_regimes, violations
 
@@ -226,25 +229,66 @@ def _strip_times(res):
                  for m, s in row.items()} for row in rows] for k, rows in res.items()}
 
 
+#: One on-chip method and one float method, for the schedulers' sweep.
+SCHED_METHODS = ("fixed_mf", "peaks_float")
+
+
+@pytest.fixture(scope="class")
+def two_chunks():
+    """Chunks of 3 shots (two per point of 5 shots, merged in chunk order) for one class."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(accuracy, "CHUNK", 3)
+        yield
+
+
+@pytest.fixture(scope="class")
+def sched_sweep():
+    """The bench's ``unstretched`` sweep (analytic bottom) at 3 and 12 m, 5 shots, seed 7: on
+    the survey scene each worker process would first spend seconds on the Monte Carlo table."""
+    depths = (3.0, 12.0)
+    return unstretched_sweep(study_base(depths), depths, method_specs(list(SCHED_METHODS)), 5,
+                             seed=7)
+
+
+@pytest.fixture(scope="class")
+def sched_reference(two_chunks, sched_sweep):
+    """:func:`run_sweeps` of ``sched_sweep`` on the synchronous scheduler."""
+    return run_sweeps([sched_sweep], scheduler="sync", progress=False)
+
+
 @needs_methods
 class TestSchedulers:
-    def test_same_numbers_on_every_scheduler(self, monkeypatch):
-        from distributed import Client, LocalCluster
+    """The same per-depth rows, to the bit, on every kind of scheduler ``--scheduler`` takes;
+    only the times differ."""
 
-        monkeypatch.setattr(accuracy, "CHUNK", 3)  # two chunks per point
-        base = survey_base()
-        # fixed_mf: the method of cheapest prepare, which each worker process repeats
-        specs = method_specs(["fixed_mf"])
-        sw = Sweep("t", (Point(base, 3.0, 3.0), Point(base, 12.0, 12.0)), specs, 5, seed=7)
-        ref = _strip_times(run_sweeps([sw], scheduler="sync", progress=False))
-        row = ref["t"][1]["fixed_mf"]
-        assert row["n"] == 5 and row["n_detected"] == 5 and row["n_wrong"] == 0
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                          dashboard_address=None) as cluster, Client(cluster) as client:
-            got = run_sweeps([sw], scheduler=client, progress=False)
-        assert _strip_times(got) == ref
-        assert all(us > 0 for us in got["t"][0]["fixed_mf"]["us_chunks"])
-        assert got["t"][0]["fixed_mf"]["n_timed"] == 5
+    def test_reference_detects_every_shot(self, sched_reference):
+        """So that equal rows below are not equal failures."""
+        for row in sched_reference["unstretched"]:
+            for name in SCHED_METHODS:
+                s = row[name]
+                assert (s["n"], s["n_detected"], s["n_wrong"], s["errors"]) == (5, 5, 0, [])
+
+    @pytest.mark.parametrize("kind", ["threads", "processes", "address"])
+    def test_same_numbers_on_every_scheduler(self, kind, two_chunks, sched_sweep,
+                                             sched_reference):
+        """``threads``, ``processes`` and the address of a two-process ``LocalCluster`` (the
+        string the CLI passes on) give the synchronous rows, every field but the times."""
+        if kind == "address":
+            from distributed import LocalCluster
+
+            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                              dashboard_address=None) as cluster:
+                address = cluster.scheduler_address
+                assert _scheduler(address) == address  # as `--scheduler ADDRESS` passes it on
+                got = run_sweeps([sched_sweep], scheduler=address, progress=False)
+        else:
+            got = run_sweeps([sched_sweep], scheduler=kind, progress=False)
+        assert _strip_times(got) == _strip_times(sched_reference)
+        for row in got["unstretched"]:
+            for name in SCHED_METHODS:
+                s = row[name]
+                assert s["n_timed"] == 5 and len(s["us_chunks"]) == 2
+                assert all(us > 0 for us in s["us_chunks"])
 
 
 #: The harsher of each regime's quick values (one survey each keeps the test short).
@@ -365,6 +409,95 @@ class TestCli:
         assert set(row) >= {"depth_m", "bias_m", "std_m", "rmse_m", "detection_rate"}
         assert printed["variants"]["stitch_paper"]["methods"][0]["stitch"] == "paper"
         assert isinstance(m["us_per_waveform"], float)
+
+    @needs_methods
+    @pytest.mark.parametrize(("flags", "bar"), [([], True), (["--no-progress"], False)],
+                             ids=["default", "no-progress"])
+    def test_progress_bar_on_stderr(self, flags, bar, monkeypatch, tmp_path, capsys):
+        """The bar counts the chunks on stderr, stdout keeps the JSON alone; ``--no-progress``
+        leaves stderr empty. One depth of ``fixed_mf``: a chunk each of the main, paper-stitch
+        and unstretched sweeps, on an analytic bottom (the survey's Monte Carlo table would
+        take seconds)."""
+        study = accuracy.study_base
+        monkeypatch.setattr(accuracy, "study_base", lambda depths: dataclasses.replace(
+            study(depths), fidelity_tolerance_m=10.0))
+        assert main(["bench", "accuracy", "--json", "--scheduler", "sync", "--methods",
+                     "fixed_mf", "--depths", "4", "--shots", "3", "--out",
+                     str(tmp_path / "a.json"), *flags]) == 0
+        out, err = capsys.readouterr()
+        assert json.loads(out)["methods"][0]["name"] == "fixed_mf"
+        assert bool(re.search(r"\rchunks: 100%\|.*\| 3/3 \[", err)) is bar
+        assert (err == "") is not bar
+
+    @staticmethod
+    def _fake_bench(monkeypatch, figures, what: str) -> dict:
+        """Stand in for the bench behind ``albcap bench {what}`` and its record's folder.
+
+        Parameters
+        ----------
+        monkeypatch : pytest.MonkeyPatch
+        figures : Path
+            Put in place of ``model.charts.FIGURES`` (``docs/figures``).
+        what : str
+            ``"accuracy"`` or ``"regimes"``.
+
+        Returns
+        -------
+        dict
+            The small result the stand-in returns at once (the CLI imports the bench when
+            run, so it gets the stand-in).
+        """
+        monkeypatch.setattr("model.charts.FIGURES", figures)
+        if what == "accuracy":
+            res = {"format": "fake", "methods": [], "targets": []}
+            monkeypatch.setattr("model.accuracy.bench_accuracy", lambda **kw: res)
+        else:
+            res = {"format": "fake", "regimes": [], "violations": []}
+            monkeypatch.setattr("model.regimes.bench_regimes", lambda *a, **kw: res)
+        return res
+
+    @pytest.mark.parametrize("what", ["accuracy", "regimes"])
+    @pytest.mark.parametrize("flags", [[], ["--scheduler", "sync"], ["--seed", "0"]],
+                             ids=["defaults", "scheduler", "seed-0"])
+    def test_full_run_writes_the_record(self, what, flags, monkeypatch, tmp_path, capsys):
+        """The full default run (on any scheduler) writes docs/figures/{what}.json."""
+        res = self._fake_bench(monkeypatch, tmp_path, what)
+        assert main(["bench", what, *flags]) == 0
+        path = tmp_path / f"{what}.json"
+        assert json.loads(path.read_text()) == res
+        out, err = capsys.readouterr()
+        assert out.endswith(f"wrote {path}\n") and err == ""
+
+    @needs_methods
+    @pytest.mark.parametrize(("what", "flags", "given"), [
+        ("accuracy", ["--quick"], "--quick"),
+        ("accuracy", ["--methods", "fixed_mf"], "--methods"),
+        ("accuracy", ["--shots", "3"], "--shots"),
+        ("accuracy", ["--depths", "4"], "--depths"),
+        ("accuracy", ["--seed", "1"], "--seed 1"),
+        ("accuracy", ["--quick", "--scheduler", "sync", "--seed", "2"], "--quick, --seed 2"),
+        ("regimes", ["--quick"], "--quick"),
+        ("regimes", ["--methods", "fixed_mf"], "--methods"),
+        ("regimes", ["--shots", "3"], "--shots"),
+        ("regimes", ["--seed", "1"], "--seed 1"),
+    ])
+    def test_partial_run_writes_only_to_out(self, what, flags, given, monkeypatch, tmp_path,
+                                            capsys):
+        """A partial run never replaces the record docs/results.md is built from: without
+        ``--out`` it writes nothing and says so on stderr."""
+        figures = tmp_path / "figures"
+        res = self._fake_bench(monkeypatch, figures, what)
+        assert main(["bench", what, "--json", *flags]) == 0
+        out, err = capsys.readouterr()
+        assert json.loads(out) == res
+        assert err == (f"albcap bench {what}: a partial run ({given}) writes no JSON; "
+                       "--out FILE writes it\n")
+        mine = tmp_path / "mine.json"
+        assert main(["bench", what, *flags, "--out", str(mine)]) == 0
+        out, err = capsys.readouterr()
+        assert json.loads(mine.read_text()) == res
+        assert out.endswith(f"wrote {mine}\n") and err == ""
+        assert not figures.exists()
 
 
     @needs_methods

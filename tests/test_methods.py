@@ -532,10 +532,8 @@ def test_a_bottom_at_a_switch_between_equal_templates_is_detected():
     e = m.estimate(shots)
     assert e.detected.all() and np.all(np.abs(e.depth_m - 3.0) < 0.02)
     from firmware_host.coeffs import scene_bank
-    from model.methods._chain import X_RANGE
 
-    full = scene_bank(flat, n_templates=m.n_templates, n_taps=m.taps, x_range=X_RANGE,
-                      merge_equal=False)
+    full = scene_bank(flat, n_templates=m.n_templates, n_taps=m.taps, merge_equal=False)
     assert full.bank.K == m.n_templates
     m._sb = dataclasses.replace(m._sb, bank=full.bank)
     m._cfg = m._cfg.replace(bin_offset=full.bin_offset, bin_len=full.bin_len)
@@ -606,3 +604,110 @@ def test_a_bottom_at_a_switch_between_equivalent_templates_is_detected(scene, se
         found[tol] = int((e.detected & (np.abs(e.depth_m - 2.95) < 0.05)).sum())
         assert m._sb.bank.K == (8 if tol == 0 else 6)
     assert found[MERGE_LOSS_DB] == 20 and found[0.0] <= 4, found
+
+
+def gaussian_codes(n_s: int, shots) -> np.ndarray:
+    """ADC codes (n, 3, n_s) of noise-free Gaussian echoes, one list of ``(amplitude LSB, centre
+    sample, sigma samples)`` per shot, on the registers' baselines (8) and gains (1, 10, 100),
+    so that the ``linear`` stitch gives back the echoes in whole high-gain LSB (the high
+    channel stays under its saturation for amplitudes below 247 LSB)."""
+    t = np.arange(n_s)
+    adc = np.empty((len(shots), 3, n_s), np.uint8)
+    for i, echoes in enumerate(shots):
+        y = sum((a * np.exp(-0.5 * ((t - c) / s) ** 2) for a, c, s in echoes), np.zeros(n_s))
+        for ch, gain in enumerate((1.0, 10.0, 100.0)):
+            adc[i, ch] = 8 + np.round(y * gain / 100.0)
+    return adc
+
+
+class TestThresholdFeatures:
+    """``threshold``'s ``Estimate.features``: the echo height ``Vm`` and width at 0.707 Vm."""
+
+    #: echo standard deviations, samples: the surface about the received pulse's (4.45), the
+    #: bottom wider, but not so wide that the base's window (8 pulse sigmas) stays on its flank
+    SIG_S, SIG_B = 4.6, 6.0
+    AMP_S, AMP_B = 200.0, 80.0
+
+    def shots(self, setup, scene):
+        n_s = make_shots(scene, 10.0, 1, seed=63).adc.shape[-1]
+        far = [(self.AMP_S, 200, self.SIG_S), (self.AMP_B, 350, self.SIG_B)]
+        alone = [(self.AMP_S, 200, self.SIG_S)]  # a surface without a bottom (land)
+        return synthetic(setup, gaussian_codes(n_s, [far, alone, []]))
+
+    def test_gaussian_echoes(self, setup, scene):
+        """Against the Gaussian's own figures: width 2 sigma sqrt(2 ln(1 / 0.707)) and height
+        the amplitude, within 2 % (whole-LSB codes, the median filter's flattened top: under
+        1 % measured). The surface is read at two smoothings (two pulse sigmas with the bottom,
+        0.4 without): uncorrected, the first would read 2.2 times wider than the second."""
+        from model.methods._common import float_wave
+
+        m = prepared("threshold", setup)
+        shots = self.shots(setup, scene)
+        used = m._detect(float_wave(shots))[2]
+        assert used[0] == pytest.approx(5 * used[1])  # the premise: 2 and 0.4 pulse sigmas
+        f = run_quiet(m, shots).features
+        k = 2 * np.sqrt(2 * np.log(1 / 0.707))  # full width at 0.707 of a Gaussian, sigmas
+        dt = setup.dt_s
+        for i in (0, 1):
+            assert f["surface_vm"][i] == pytest.approx(self.AMP_S, rel=0.02)
+            assert f["surface_width_s"][i] == pytest.approx(k * self.SIG_S * dt, rel=0.02)
+        assert f["bottom_vm"][0] == pytest.approx(self.AMP_B, rel=0.02)
+        assert f["bottom_width_s"][0] == pytest.approx(k * self.SIG_B * dt, rel=0.02)
+
+    def test_zero_where_not_found(self, setup, scene):
+        """Shape (n,), float64, 0.0 (never NaN) where the echo was not found: the bottom of a
+        lone surface (which is measured, though its depth is not detected) and everything of a
+        flat shot or of a gate too short to read."""
+        m = prepared("threshold", setup)
+        est = run_quiet(m, self.shots(setup, scene))
+        assert sorted(est.features) == ["bottom_vm", "bottom_width_s", "surface_vm",
+                                        "surface_width_s"]
+        for v in est.features.values():
+            assert v.shape == (3,) and v.dtype == np.float64 and np.all(np.isfinite(v))
+        assert est.detected.tolist() == [True, False, False]
+        f = est.features
+        assert f["surface_vm"][1] > 0 and f["surface_width_s"][1] > 0
+        assert f["bottom_vm"][1:].tolist() == [0.0, 0.0]
+        assert f["bottom_width_s"][1:].tolist() == [0.0, 0.0]
+        assert f["surface_vm"][2] == 0.0 and f["surface_width_s"][2] == 0.0
+        short = make_shots(scene, 10.0, 2, seed=64).adc[:, :, :8].copy()
+        est = run_quiet(m, synthetic(setup, short))
+        assert {key: v.tolist() for key, v in est.features.items()} == {
+            key: [0.0, 0.0] for key in f}
+
+
+class TestEstimateFeatures:
+    def make(self, **features):
+        z = np.zeros(3)
+        return Estimate(depth_m=z, detected=np.zeros(3, bool), surface_s=z, bottom_s=z,
+                        features=features)
+
+    def test_default_empty(self):
+        z = np.zeros(2)
+        assert Estimate(depth_m=z, detected=z > 0, surface_s=z, bottom_s=z).features == {}
+
+    def test_converted(self):
+        v = self.make(width=[1, 2, 3]).features["width"]
+        assert v.dtype == np.float64 and v.tolist() == [1.0, 2.0, 3.0]
+
+    def test_wrong_shape(self):
+        with pytest.raises(ValueError, match=re.escape(
+                "features['width'] must have shape (3,), not (2,)")):
+            self.make(width=np.zeros(2))
+        with pytest.raises(ValueError, match=re.escape(
+                "features['width'] must have shape (3,), not (3, 1)")):
+            self.make(width=np.zeros((3, 1)))
+
+    def test_not_finite(self):
+        with pytest.raises(ValueError, match=re.escape(
+                "features['vm'] must be finite (0.0 where not measured), not with 1 NaN or "
+                "infinite value(s)")):
+            self.make(vm=[0.0, np.nan, 1.0])
+        with pytest.raises(ValueError, match=re.escape("features['vm'] must be finite")):
+            self.make(vm=[0.0, np.inf, 1.0])
+
+    def test_not_a_dict(self):
+        z = np.zeros(3)
+        with pytest.raises(ValueError, match=re.escape(
+                "features must be a dict of arrays, not list")):
+            Estimate(depth_m=z, detected=z > 0, surface_s=z, bottom_s=z, features=[z])

@@ -29,8 +29,6 @@ from .base import Estimate, Method, Setup, Shots
 
 __all__ = ["ChainMethod"]
 
-#: Stitched input range of the ``linear`` rule (high-gain LSB), for the filter's output shift.
-X_RANGE = (-800, 24700)
 N_TAPS = 64
 
 
@@ -40,8 +38,10 @@ class ChainMethod(Method):
     Parameters
     ----------
     stitch : {"linear", "paper"}
-        The stitch register's rule (``model.stitch``); ``paper`` (seed 000 eq. 1) uses the
-        filter's output shift for its 0..765 range, as ``model.demo.demo_rows`` does.
+        The stitch register's rule (``model.stitch``); the bank is made for it
+        (``firmware_host.coeffs.scene_bank(stitch=...)``: the output shift for its range,
+        and for ``paper`` (seed 000 eq. 1) templates of equal sums), as
+        ``model.demo.demo_rows`` does.
     k_thr_q4 : int, optional
         The detector's threshold factor (1/16); default the survey's ``SURVEY_K_THR_Q4``.
     taps : int
@@ -56,10 +56,11 @@ class ChainMethod(Method):
     walk : bool
         Correct the depths with the bank's range-walk table (default), as ``albcap depth``
         does with a bank file from ``albcap coeffs``; False gives the raw depths.
-    normalize : {"noise", "dc", "energy"}
+    normalize : {"noise", "dc", "energy"}, optional
         How the bank's templates are scaled against each other
-        (``firmware_host.coeffs.scene_bank``): the same noise gain (default), the same sum of
-        taps, or the same energy.
+        (``firmware_host.coeffs.scene_bank``): the same noise gain, the same sum of taps, or
+        the same energy; default the rule's (``firmware_host.coeffs.stitch_normalize``:
+        ``noise`` for ``linear``, ``dc`` for ``paper``).
     merge_loss_db : float, optional
         Neighbouring templates that lose at most this much SNR for each other share a bin
         run (``firmware_host.coeffs.distinct_templates``); default ``scene_bank``'s.
@@ -69,7 +70,7 @@ class ChainMethod(Method):
     n_templates = 1
 
     def __init__(self, stitch: str = "linear", walk: bool = True, k_thr_q4: int | None = None,
-                 taps: int = N_TAPS, min_bin_offset: int = 0, normalize: str = "noise",
+                 taps: int = N_TAPS, min_bin_offset: int = 0, normalize: str | None = None,
                  merge_loss_db: float | None = None):
         if not (isinstance(taps, int) and not isinstance(taps, bool) and 2 <= taps <= N_TAPS):
             raise ValueError(f"taps must be an integer in 2..{N_TAPS}, not {taps!r}")
@@ -77,12 +78,12 @@ class ChainMethod(Method):
                 and 0 <= min_bin_offset <= 4095):
             raise ValueError(f"min_bin_offset must be an integer in 0..4095, "
                              f"not {min_bin_offset!r}")
-        if stitch not in ("linear", "paper"):
-            raise ValueError(f"stitch must be 'linear' or 'paper', not {stitch!r}")
         if k_thr_q4 is not None and not (isinstance(k_thr_q4, int) and 0 <= k_thr_q4 <= 4095):
             raise ValueError(f"k_thr_q4 must be an integer in 0..4095, not {k_thr_q4!r}")
-        if normalize not in ("noise", "dc", "energy"):
-            raise ValueError(f"normalize must be 'noise', 'dc' or 'energy', not {normalize!r}")
+        from firmware_host.coeffs import stitch_normalize
+
+        # checks the rule and the normalization (and that they go together) before any work
+        normalize = stitch_normalize(stitch, normalize, self.n_templates)
         if merge_loss_db is not None and not (isinstance(merge_loss_db, int | float)
                                               and 0 <= merge_loss_db < 3):
             raise ValueError(f"merge_loss_db must be a number in 0..3 dB, not {merge_loss_db!r}")
@@ -111,7 +112,7 @@ class ChainMethod(Method):
         self._confident_q4 = CONFIDENT_K_THR_Q4
         linear = self.stitch == "linear"
         sb = scene_bank(setup.scene, n_templates=self.n_templates, n_taps=self.taps,
-                        x_range=X_RANGE if linear else (0, 765),
+                        stitch=self.stitch,
                         min_bin_offset=self.min_bin_offset, normalize=self.normalize,
                         merge_loss_db=(MERGE_LOSS_DB if self.merge_loss_db is None
                                        else self.merge_loss_db))

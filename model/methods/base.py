@@ -98,6 +98,17 @@ class Estimate:
         The detections the method stands behind (its ``error_bound_m`` applies to them); the
         others are *weak* (``detected`` but not ``confident``: reported and flagged, held to no
         bound). Default: every detection.
+    features : dict of str to ndarray float64 (n,), optional
+        Named per-shot measurements a method reports besides the depth (an echo's amplitude,
+        its width, ...), each documented with its unit by the method that reports it; 0.0
+        where the method did not measure it (never NaN, as the fields above). Unlike those,
+        a feature need not be 0.0 where the shot is not ``detected``: a method may measure
+        an echo whose depth it flags. Default: none (an empty dict).
+
+    Raises
+    ------
+    ValueError
+        A field of the wrong shape, or a feature that is not finite.
     """
 
     depth_m: np.ndarray
@@ -105,6 +116,7 @@ class Estimate:
     surface_s: np.ndarray
     bottom_s: np.ndarray
     confident: np.ndarray | None = None
+    features: dict | None = None
 
     def __post_init__(self):
         n = np.asarray(self.detected).shape
@@ -121,6 +133,21 @@ class Estimate:
             if c.shape != n:
                 raise ValueError(f"confident must have shape {n}, not {c.shape}")
             self.confident = c & self.detected  # only a detection can be confident
+        feats = {} if self.features is None else self.features
+        if not isinstance(feats, dict):
+            raise ValueError(f"features must be a dict of arrays, not {type(feats).__name__}")
+        checked = {}
+        for key, value in feats.items():
+            v = np.asarray(value, dtype=np.float64)
+            if v.shape != n:
+                raise ValueError(f"features[{key!r}] must have shape {n}, not {v.shape}")
+            bad = int(np.count_nonzero(~np.isfinite(v)))
+            if bad:
+                # a NaN would propagate through a caller's statistics unseen (module docstring)
+                raise ValueError(f"features[{key!r}] must be finite (0.0 where not measured), "
+                                 f"not with {bad} NaN or infinite value(s)")
+            checked[key] = v
+        self.features = checked  # a new dict: the caller's is neither kept nor changed
 
 
 class Method:
