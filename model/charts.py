@@ -135,7 +135,7 @@ def pareto_chart(acc: dict, out_dir: Path) -> list[Path]:
         p = acc["papers"][key]
         ax.scatter(p["us_per_waveform"], p["rmse_m"] * 100, marker="x", color="k", zorder=3)
         ax.annotate(f"seed 001: {p['method']}", (p["us_per_waveform"], p["rmse_m"] * 100),
-                    xytext=(-8, -12), textcoords="offset points", fontsize=8, ha="right")
+                    xytext=(-6, 5), textcoords="offset points", fontsize=7, ha="right")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time per waveform, us (log; mean 1-26 m; methods: estimate() only, one "

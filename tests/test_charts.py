@@ -31,3 +31,25 @@ def test_no_chip_without_an_fpga_figure():
     acc = {**ACC, "targets": [{"id": "onchip_speed", "chip_rmse_m": 0.10}]}
     assert onchip_point(acc) is None
     assert pareto_front(acc) == pareto_front(ACC)
+
+
+def test_chart_writes_the_rescored_targets_back(tmp_path):
+    """``albcap chart`` scores the targets with the latest recorded figures (the speed and
+    builds benches run after the sweep) and writes them into the accuracy JSON, so that the
+    JSON and the page agree."""
+    import json
+    from pathlib import Path
+
+    from firmware_host.cli import main
+    from model.accuracy import score
+
+    rec = Path(__file__).resolve().parent.parent / "docs" / "figures" / "accuracy.json"
+    acc = json.loads(rec.read_text())
+    stale = {**acc, "targets": [{**t, "value": -1.0} for t in acc["targets"]]}
+    path = tmp_path / "accuracy.json"
+    path.write_text(json.dumps(stale))
+    assert main(["chart", "--accuracy", str(path), "--regimes", str(tmp_path / "none.json"),
+                 "--out-dir", str(tmp_path)]) == 0
+    back = json.loads(path.read_text())
+    assert back["targets"] == score(acc)["targets"]
+    assert all(t["value"] != -1.0 for t in back["targets"])
