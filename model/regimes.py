@@ -113,6 +113,29 @@ def _clear(s):
                                sediment_mg_l=0.0, bottom_albedo=0.5)
 
 
+def _photon_water(scene) -> tuple:
+    """The photon-counting twin's water for ``scene``'s: seed 004's attenuation (0.4 1/m,
+    its ``c_per_m``) scaled by the lidar attenuation of ``scene``'s water against the nominal
+    survey's (``sim.optics.lidar_attenuation`` of their constituents), as
+    ``(("c_per_m", c),)``. Seed 004 gives one water; the scaling carries the regime's change
+    of water to it, not seed 000's water itself."""
+    from sim.optics import iops_from_concentrations, lidar_attenuation
+    from sim.photon import SEED004
+
+    def k(s):
+        return lidar_attenuation(*iops_from_concentrations(
+            s.yellow_substance_per_m, s.chlorophyll_ug_l, s.sediment_mg_l))
+
+    return (("c_per_m", SEED004["c_per_m"] * k(scene) / k(survey_base())),)
+
+
+#: Depth of the photon twin of the turbid regime [m]: within seed 004's reach in its own
+#: water (3.73 m at 0.5 uJ, its Table 1), as the sunlight regime's 4 m.
+_PHOTON_TURBID_M = 3.0
+#: Bottom reflectance of the photon twin of the saturated bottom: the regime's albedo.
+_PHOTON_BRIGHT_RHO_B = 0.5
+
+
 REGIMES = (
     Regime("shallow", "very shallow water: surface and bottom echoes merge below about 1.5 m",
            "depth", "m", (0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.5, 2.0), (0.4, 1.0, 2.0),
@@ -122,7 +145,9 @@ REGIMES = (
            photon=lambda v: (v, ())),
     Regime("turbid", "turbid water (mineral sediment) at 10 m", "sediment", "mg/L",
            (1.0, 2.0, 4.0, 8.0, 16.0), (1.0, 8.0),
-           lambda s, v: (dataclasses.replace(s, sediment_mg_l=v), 10.0), survey=known),
+           lambda s, v: (dataclasses.replace(s, sediment_mg_l=v), 10.0), survey=known,
+           photon=lambda v: (_PHOTON_TURBID_M, _photon_water(
+               dataclasses.replace(survey_base(), sediment_mg_l=v)))),
     Regime("one_channel", "one channel: the high-gain channel alone, clipping at 255 "
            "(gains 100/100/100)", "depth", "m", (1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 26.0),
            (2.0, 15.0), lambda s, v: (_one_channel(s), v), survey=known),
@@ -142,7 +167,9 @@ REGIMES = (
            photon=lambda v: (NAN, (("background_hz", _sun_hz(v)),))),
     Regime("saturated_bottom", "very clear shallow water, albedo 0.5: the bottom saturates the "
            "middle and high channels", "depth", "m", (1.5, 2.0, 3.0, 5.0, 8.0), (2.0, 5.0),
-           lambda s, v: (_clear(s), v), survey=known),
+           lambda s, v: (_clear(s), v), survey=known,
+           photon=lambda v: (v, (*_photon_water(_clear(survey_base())),
+                                 ("rho_b", _PHOTON_BRIGHT_RHO_B)))),
 )
 
 

@@ -326,6 +326,22 @@ class TestRegimes:
                      "m at deep depth=30: 3 confident wrong depths",
                      "m at deep depth=30: 6.0 s per waveform (hang)"]
 
+    def test_photon_twins(self, regimes_result):
+        """Photon counting runs in every regime with a physical twin: all but one channel
+        (no channels) and the slope (seed 004's photon model has no footprint). The turbid
+        water's attenuation rises with its sediment, and the bright bottom is bright."""
+        twins = {r.name for r in REGIMES if all(r.photon(v) is not None for v in r.values)}
+        assert twins == {"shallow", "deep", "turbid", "sunlight", "no_bottom",
+                         "saturated_bottom"}
+        turbid = next(r for r in REGIMES if r.name == "turbid")
+        c = [dict(turbid.photon(v)[1])["c_per_m"] for v in turbid.values]
+        assert c[0] == pytest.approx(0.4) and all(np.diff(c) > 0)  # 1 mg/L: seed 004's
+        bright = next(r for r in REGIMES if r.name == "saturated_bottom")
+        assert all(dict(bright.photon(v)[1])["rho_b"] == 0.5 for v in bright.values)
+        ran = {r["name"] for r in regimes_result["regimes"]
+               if all(p["methods"]["photon_hist"] is not None for p in r["points"])}
+        assert ran == twins
+
     @pytest.mark.parametrize("name", list(METHODS))
     def test_invariants(self, name, regimes_result):
         if name in SLOW and not SLOW_OK:
