@@ -346,13 +346,12 @@ def builds_chart(builds: dict, acc: dict | None, out_dir: Path) -> list[Path]:
 
 def write_charts(acc: dict | None, reg: dict | None, out_dir=FIGURES,
                  builds: dict | None = None) -> list[Path]:
-    """Every chart the given results allow; returns the files written."""
+    """Every chart the given results allow; returns the files written. ``acc`` as given:
+    ``albcap chart`` passes it scored (``model.accuracy.score``), so the speed chart's star
+    is the chip its targets use."""
     out_dir = Path(out_dir)
     paths = []
     if acc is not None:
-        from .accuracy import score
-
-        acc = score(acc)  # the targets with the latest recorded figures, as the tables
         for f in (pareto_chart, bias_std_chart, channels_chart, extractions_chart, stitch_chart):
             paths += f(acc, out_dir)
     if builds is not None:
