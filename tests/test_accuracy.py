@@ -233,7 +233,7 @@ def _strip_times(res):
 SCHED_METHODS = ("fixed_mf", "peaks_float")
 
 
-@pytest.fixture(scope="class")
+@pytest.fixture(scope="session")
 def two_chunks():
     """Chunks of 3 shots (two per point of 5 shots, merged in chunk order) for one class."""
     with pytest.MonkeyPatch.context() as mp:
@@ -241,7 +241,7 @@ def two_chunks():
         yield
 
 
-@pytest.fixture(scope="class")
+@pytest.fixture(scope="session")
 def sched_sweep():
     """The bench's ``unstretched`` sweep (analytic bottom) at 3 and 12 m, 5 shots, seed 7: on
     the survey scene each worker process would first spend seconds on the Monte Carlo table."""
@@ -250,7 +250,7 @@ def sched_sweep():
                              seed=7)
 
 
-@pytest.fixture(scope="class")
+@pytest.fixture(scope="session")
 def sched_reference(two_chunks, sched_sweep):
     """:func:`run_sweeps` of ``sched_sweep`` on the synchronous scheduler."""
     return run_sweeps([sched_sweep], scheduler="sync", progress=False)
@@ -296,7 +296,9 @@ HARSH = {"shallow": 0.4, "deep": 45.0, "turbid": 8.0, "one_channel": 2.0, "sunli
          "slope": 70.0, "no_bottom": 3.0, "saturated_bottom": 2.0}
 
 
-@pytest.fixture(scope="module")
+# session scope: a module fixture is made again whenever xdist runs another module's tests
+# on the worker in between (the cold run measured it made twice, 62 and 61 s)
+@pytest.fixture(scope="session")
 def regimes_result():
     """The suite at the harsher quick value of each regime, 3 shots (a small set)."""
     names = [n for n in METHODS if n not in SLOW or SLOW_OK]

@@ -125,7 +125,7 @@ class TestTargetsWithBuilds:
             assert r["onchip_speed"]["value"] == pytest.approx(25.0)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def small(tmp_path_factory):
     figs = {"figures": {k: v for k, v in FIGS["figures"].items()
                         if "lanes=8" in k or "stitch" in k}}

@@ -151,7 +151,7 @@ class TestFiles:
             coeffs.read_bank_hex(tmp_path / "b.hex", 1, 1)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def made():
     from sim.scene import preset
 

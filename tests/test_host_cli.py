@@ -26,7 +26,7 @@ def _run(capsys, *argv):
     return code, out, err
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def bank_dir(tmp_path_factory):
     d = tmp_path_factory.mktemp("bank")
     assert main(["coeffs", "--preset", "seed000", "--out", str(d)]) == 0

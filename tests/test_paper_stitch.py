@@ -44,12 +44,12 @@ class TestStitchNormalize:
             get_method("adaptive_mf")(stitch="paper", normalize="noise")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def scene():
     return study_base([40.0])
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def paper_mf(scene):
     m = get_method("adaptive_mf")(stitch="paper")
     m.prepare(setup_for(scene))

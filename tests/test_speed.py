@@ -14,11 +14,13 @@ from model import accuracy
 from model.speed import METHODS_DEFAULT, SHOTS_MAX, TARGET_RATIO, bench_speed, reference_method
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def res():
     return bench_speed(shots=4, repeats=2)
 
 
+# one worker makes the batch (about 30 s), not each
+@pytest.mark.xdist_group("speed")
 class TestBenchSpeed:
     def test_batch(self, res):
         lo, hi = accuracy.SUMMARY_RANGE_M

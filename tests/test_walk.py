@@ -45,7 +45,7 @@ class TestWalkCorrection:
             walk_correction(np.ones(2), np.array([0, 2]), self.TABLE)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def small_survey():
     scene = survey_scene(preset("seed000"))
     sb = scene_bank(scene, n_templates=4, n_taps=64)
