@@ -33,7 +33,7 @@ from model.link import FIFO_BYTES
 from model.matched_filter import K_MAX, L_MAX
 
 from . import matched_filter, stitch
-from ._primitives import _step
+from ._primitives import RegisterSlice, _step, register_slice
 from .detect import FilterDetect
 from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, PACK_IN, FramePacketizer
 from .gate import Gate
@@ -55,13 +55,6 @@ _FILTER_SLICE = data.StructLayout({"beat": matched_filter.FILTER_IN, "codes": CO
 _INSIDE_BITS = 8  # frames inside the filter/detector: a handful at most
 #: Registers between the filter's acceptance of a sample and the write of its entry beside it.
 _FILTER_WRITE_DELAY = 2
-
-
-def _fifo_ports(width: int) -> dict:
-    """The ports of an ``amaranth.lib.fifo`` FIFO (``w_rdy`` high after reset), for the FIFOs
-    written here."""
-    return {"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
-            "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)}
 
 
 class _Beside(wiring.Component):
@@ -137,52 +130,6 @@ def _join_into_slice(out, side, joined, slice_, consumer) -> list:
         consumer.valid.eq(slice_.r_rdy),
         slice_.r_en.eq(consumer.ready),
     ]
-
-
-class RegisterSlice(wiring.Component):
-    """A stream register slice (a skid buffer): ``r_data``, ``r_rdy`` and ``w_rdy`` are each a
-    flip-flop, one transfer per clock sustained, one clock of latency, two entries.
-
-    Ports as ``amaranth.lib.fifo`` FIFOs (``w_data``, ``w_en``, ``w_rdy``, ``r_data``,
-    ``r_en``, ``r_rdy``). The output register holds the oldest entry; a write that finds it
-    held and not read this clock goes to the skid register, and ``w_rdy`` is low exactly while
-    the skid register is full. Written by hand because ``amaranth.lib.fifo`` has no FIFO whose
-    ``w_rdy`` is a register: ``SyncFIFOBuffered(depth=3)``, the slice until the thirteenth
-    session, makes ``w_rdy`` a compare of its inner FIFO's level, and that compare -> the
-    filter's output fork -> the side FIFO's read was the pipeline's worst path (6.67 ns, 150.0
-    MHz, ``docs/fpga.md``). Like that slice, no path runs from ``r_en`` to ``w_rdy``.
-    """
-
-    def __init__(self, width: int):
-        if not (isinstance(width, int) and width >= 1):
-            raise ValueError(f"width must be an integer >= 1, not {width!r}")
-        self.width = width
-        super().__init__(_fifo_ports(width))
-
-    def elaborate(self, platform):
-        m = Module()
-        skid = Signal(self.width)
-        skid_full = ~self.w_rdy  # w_rdy is the register: low exactly while the skid is full
-        write = self.w_en & self.w_rdy
-        # the output register is free at this clock's edge: empty, or read now
-        free = ~self.r_rdy | self.r_en
-        with m.If(free):
-            with m.If(skid_full):
-                # the skid's entry is older than any write (none is taken while it is full)
-                m.d.sync += [self.r_data.eq(skid), self.r_rdy.eq(1), self.w_rdy.eq(1)]
-            with m.Else():
-                m.d.sync += [self.r_data.eq(self.w_data), self.r_rdy.eq(write)]
-        with m.Elif(write):
-            m.d.sync += [skid.eq(self.w_data), self.w_rdy.eq(0)]
-        return m
-
-
-def register_slice(width: int) -> RegisterSlice:
-    """A stream register slice between two stages (:class:`RegisterSlice`): outputs and
-    ``w_rdy`` from flip-flops, one transfer per clock. (Depth 2 of ``SyncFIFOBuffered`` would
-    be a 1-entry FIFO whose ``w_rdy`` is low on the clock its entry moves out: half a transfer
-    per clock; ``tests/test_hdl_pipeline.py`` checks the rate.)"""
-    return RegisterSlice(width)
 
 
 class Pipeline(wiring.Component):
@@ -270,16 +217,15 @@ class Pipeline(wiring.Component):
         m = Module()
         m.submodules.stitch = st = stitch.Stitch()
         m.submodules.gate = gate = Gate(depth=self.gate_depth)
-        m.submodules.detect = fd = FilterDetect()
+        m.submodules.detect = fd = FilterDetect(fork_slice=True)
         m.submodules.pack = pk = FramePacketizer(self.fifo_bytes, self.max_samples)
         # Rings beside the stitch and the filter (`_Beside`), each written as its stage
         # accepts a sample and read as the sample leaves it; the stage's CAPACITY and LATENCY
         # bound what they hold and when, so they need no level and refuse nothing.
         ev = m.submodules.beside_stitch = _Beside(ADC_IN.size, stitch.CAPACITY,
                                                   stitch.LATENCY, write_delay=1)
-        cx = m.submodules.beside_filter = _Beside(_BESIDE_FILTER.size, matched_filter.CAPACITY,
-                                                  matched_filter.LATENCY,
-                                                  write_delay=_FILTER_WRITE_DELAY)
+        cx = m.submodules.beside_filter = _Beside(_BESIDE_FILTER.size, fd.y_capacity,
+                                                  fd.y_latency, write_delay=_FILTER_WRITE_DELAY)
 
         wiring.connect(m, wiring.flipped(self.cfg_stitch), st.cfg)
         wiring.connect(m, wiring.flipped(self.cfg_gate), gate.cfg)
