@@ -311,7 +311,7 @@ class Pipeline(wiring.Component):
 
         # ---- filter output + beside it -> a register slice -> packetizer samples;
         # result -> packetizer. The slice keeps the packetizer's collect logic (its `i.ready`
-        # from the latched frame type and state) off the side FIFO's read and the filter's
+        # from the latched frame type and state) off the (then) side FIFO's read and the filter's
         # output handshake: straight through, that was the pipeline's critical path (11.4 ns,
         # 87.5 MHz) once the packetizer's own size path was cut.
         beside = _BESIDE_FILTER(cx.r_data)
