@@ -20,8 +20,9 @@ from amaranth.lib.wiring import In, Out
 
 from ._bram import BlockRAM
 
-__all__ = ["RAM_DELAY_MIN", "OneHotFSM", "_Store", "_delay", "_delay_to", "_le",
-           "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub_sign", "_sum_tree"]
+__all__ = ["RAM_DELAY_MIN", "OneHotFSM", "RegisterSlice", "_Store", "_delay", "_delay_to", "_le",
+           "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub_sign", "_sum_tree",
+           "register_slice"]
 
 
 def _le(a, b):
@@ -435,3 +436,56 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None):
         tk, no = (getattr(data.View(head.shape(), h), name) for h in (head_tk, head_no))
         m.d.sync += reg.eq(Mux(take, Mux(held_tk, tk, nxt), Mux(held_no, no, nxt)))
         m.d.comb += field.eq(reg)
+
+
+def _fifo_ports(width: int) -> dict:
+    """The ports of an ``amaranth.lib.fifo`` FIFO (``w_rdy`` high after reset), for the FIFOs
+    written here."""
+    return {"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
+            "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)}
+
+
+class RegisterSlice(wiring.Component):
+    """A stream register slice (a skid buffer): ``r_data``, ``r_rdy`` and ``w_rdy`` are each a
+    flip-flop, one transfer per clock sustained, one clock of latency, two entries.
+
+    Ports as ``amaranth.lib.fifo`` FIFOs (``w_data``, ``w_en``, ``w_rdy``, ``r_data``,
+    ``r_en``, ``r_rdy``). The output register holds the oldest entry; a write that finds it
+    held and not read this clock goes to the skid register, and ``w_rdy`` is low exactly while
+    the skid register is full. Written by hand because ``amaranth.lib.fifo`` has no FIFO whose
+    ``w_rdy`` is a register: ``SyncFIFOBuffered(depth=3)``, the slice until the thirteenth
+    session, makes ``w_rdy`` a compare of its inner FIFO's level, and that compare -> the
+    filter's output fork -> the side FIFO's read was the pipeline's worst path (6.67 ns, 150.0
+    MHz, ``docs/fpga.md``). Like that slice, no path runs from ``r_en`` to ``w_rdy``.
+    """
+
+    def __init__(self, width: int):
+        if not (isinstance(width, int) and width >= 1):
+            raise ValueError(f"width must be an integer >= 1, not {width!r}")
+        self.width = width
+        super().__init__(_fifo_ports(width))
+
+    def elaborate(self, platform):
+        m = Module()
+        skid = Signal(self.width)
+        skid_full = ~self.w_rdy  # w_rdy is the register: low exactly while the skid is full
+        write = self.w_en & self.w_rdy
+        # the output register is free at this clock's edge: empty, or read now
+        free = ~self.r_rdy | self.r_en
+        with m.If(free):
+            with m.If(skid_full):
+                # the skid's entry is older than any write (none is taken while it is full)
+                m.d.sync += [self.r_data.eq(skid), self.r_rdy.eq(1), self.w_rdy.eq(1)]
+            with m.Else():
+                m.d.sync += [self.r_data.eq(self.w_data), self.r_rdy.eq(write)]
+        with m.Elif(write):
+            m.d.sync += [skid.eq(self.w_data), self.w_rdy.eq(0)]
+        return m
+
+
+def register_slice(width: int) -> RegisterSlice:
+    """A stream register slice between two stages (:class:`RegisterSlice`): outputs and
+    ``w_rdy`` from flip-flops, one transfer per clock. (Depth 2 of ``SyncFIFOBuffered`` would
+    be a 1-entry FIFO whose ``w_rdy`` is low on the clock its entry moves out: half a transfer
+    per clock; ``tests/test_hdl_pipeline.py`` checks the rate.)"""
+    return RegisterSlice(width)

@@ -34,8 +34,10 @@ from amaranth.lib.wiring import In, Out
 
 from model.matched_filter import K_MAX, L_MAX
 
+from ._primitives import RegisterSlice
 from .layouts import config_signature
 from .matched_filter import (
+    CAPACITY,
     COEF_WRITE,
     LATENCY,
     SURFACE_APPLY,
@@ -81,6 +83,14 @@ class FilterDetect(wiring.Component):
         4..1024): from its ``lookahead_hides`` on (20 at one lane, 28 at 9 to 16 lanes)
         frames of at least the detector's ``result_latency`` beats stream back to back with
         no gap; it raises :attr:`min_bin_offset` and the result's latency.
+    fork_slice : bool
+        A register slice (:class:`~hdl._primitives.RegisterSlice`) between the filter's output
+        and the fork to ``y`` and the detector, so that the detector's input decision reads
+        registers, not the filter's output buffer through the fork (the pipeline's worst
+        path on two nextpnr seeds, ``docs/fpga.md`` run 46). It delays the fed-back surface
+        by up to two beats (the slice's two entries): :attr:`min_bin_offset` grows by ``2
+        lanes``, to 24 at one lane, the register's floor. Off by default (every figure
+        of the many-lane joins is without it); the pipeline's join has it.
 
     Attributes
     ----------
@@ -118,7 +128,8 @@ class FilterDetect(wiring.Component):
     and the detector's waits (threshold, frame end) stall ``y``.
     """
 
-    def __init__(self, lanes: int = 1, taps_max: int = L_MAX, lookahead: int = 0):
+    def __init__(self, lanes: int = 1, taps_max: int = L_MAX, lookahead: int = 0,
+                 fork_slice: bool = False):
         # the parts are made here so that their latencies give the bound before elaboration
         # (private parts: an unused join warns for itself, they need not warn as well)
         # the detector's messages come from samples the filter has passed: never for a newer
@@ -128,8 +139,18 @@ class FilterDetect(wiring.Component):
         self._detect = PeakDetect(lanes=lanes, lookahead=lookahead)
         self._detect._MustUse__silence = True
         self.lanes, self.taps_max, self.lookahead = lanes, taps_max, lookahead
+        self.fork_slice = bool(fork_slice)
+        # the fork slice holds up to two beats between the filter and the detector: with its
+        # output register and its skid full, the filter may hold its CAPACITY more
+        slice_beats = 2 if self.fork_slice else 0
         #: smallest ``bin_offset`` for which the fed-back surface always arrives in time
-        self.min_bin_offset = self._filter.max_unsurfaced(self._detect.surface_latency) + 1
+        self.min_bin_offset = self._filter.max_unsurfaced(
+            self._detect.surface_latency + slice_beats) + 1
+        #: one lane: beats accepted at ``i`` and not yet taken at ``y``, at most, and the
+        #: fewest clocks from a beat's acceptance to its ``y`` (what travels beside the join
+        #: in the pipeline is sized and checked by them)
+        self.y_capacity = CAPACITY + slice_beats
+        self.y_latency = LATENCY + int(self.fork_slice)
         #: clocks a frame costs beyond its beats (the detector's wait for its threshold)
         self.frame_gap_clocks = self._detect.threshold_bubble
         super().__init__({**join_ports(lanes),
@@ -147,12 +168,20 @@ class FilterDetect(wiring.Component):
         wiring.connect(m, wiring.flipped(self.cfg_peak), p.cfg)
         m.d.comb += [f.templates.eq(self.templates), f.taps.eq(self.taps),
                      p.taps.eq(self.taps)]
+        src = f.o
+        if self.fork_slice:
+            sl = m.submodules.fork_slice = RegisterSlice(len(f.o.payload.as_value()))
+            src = stream.Signature(f.o.payload.shape()).create()
+            m.d.comb += [sl.w_data.eq(f.o.payload), sl.w_en.eq(f.o.valid),
+                         f.o.ready.eq(sl.w_rdy),
+                         src.payload.eq(sl.r_data), src.valid.eq(sl.r_rdy),
+                         sl.r_en.eq(src.ready)]
         # fork: a beat moves when both consumers take it
         m.d.comb += [
-            self.y.payload.eq(f.o.payload),
-            p.i.payload.eq(f.o.payload),
-            self.y.valid.eq(f.o.valid & p.i.ready),
-            p.i.valid.eq(f.o.valid & self.y.ready),
-            f.o.ready.eq(self.y.ready & p.i.ready),
+            self.y.payload.eq(src.payload),
+            p.i.payload.eq(src.payload),
+            self.y.valid.eq(src.valid & p.i.ready),
+            p.i.valid.eq(src.valid & self.y.ready),
+            src.ready.eq(self.y.ready & p.i.ready),
         ]
         return m

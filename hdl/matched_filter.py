@@ -61,7 +61,8 @@ TAG_WIDTH = 8
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
 LATENCY = 15
 #: Samples accepted and not yet taken at the output, at most (one lane): ``i.ready`` is low
-#: while this many are inside. The pipeline sizes the FIFO beside the filter by it.
+#: while this many are inside. The pipeline sizes the ring beside the filter by it
+#: (``FilterDetect.y_capacity``).
 CAPACITY = LATENCY + 1
 
 #: Clock edges from the one that takes a surface message to the first one whose accepted sample

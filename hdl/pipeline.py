@@ -6,11 +6,11 @@
                   └── codes, events ──┘  └ codes, x ┘  (y, result)      (+ header)   bytes
 
 Each stage is the component of its own module; this one only joins them. Values that a stage
-does not carry travel beside it in a small FIFO and are joined again at its output (codes and
-events beside the stitch, codes and ``x`` beside the filter), so no stage latency is assumed:
-the side FIFOs are sized from the stages' ``LATENCY`` and ``CAPACITY`` constants, and a stage
-that grows a register only costs a side FIFO entry's worth of throughput, never a wrong
-pairing.
+does not carry travel beside it in a small ring (:class:`_Beside`) and are joined again at its
+output (codes and events beside the stitch, codes and ``x`` beside the filter). A ring is sized
+from its stage's ``CAPACITY`` (the samples it holds at most) and checks its write delay against
+the stage's ``LATENCY`` (the soonest a sample leaves), so a stage that grows a register grows
+its ring with its constants, and a wrong pairing cannot be built.
 
 Bank switches (the link's ``BANK_COMMIT``). A frame is *inside* from the clock its first sample
 passes the hold (into the filter's input slice) to the clock the packetizer takes its detector
@@ -25,8 +25,7 @@ packetizer only once its frame is inside, and ``bank_id`` is written into it the
 from __future__ import annotations
 
 from amaranth.hdl import Cat, Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
-from amaranth.lib.fifo import SyncFIFO
+from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.layouts import FRAME_HEADER
@@ -34,7 +33,7 @@ from model.link import FIFO_BYTES
 from model.matched_filter import K_MAX, L_MAX
 
 from . import matched_filter, stitch
-from ._primitives import _step
+from ._primitives import RegisterSlice, _step, register_slice
 from .detect import FilterDetect
 from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, PACK_IN, FramePacketizer
 from .gate import Gate
@@ -54,114 +53,83 @@ _BESIDE_FILTER = data.StructLayout({"codes": CODES, "x": STITCHED})
 #: The filter's input slice: the filter's beat, and the codes that go beside the filter.
 _FILTER_SLICE = data.StructLayout({"beat": matched_filter.FILTER_IN, "codes": CODES})
 _INSIDE_BITS = 8  # frames inside the filter/detector: a handful at most
+#: Registers between the filter's acceptance of a sample and the write of its entry beside it.
+_FILTER_WRITE_DELAY = 2
 
 
-def _fifo_ports(width: int) -> dict:
-    """The ports of an ``amaranth.lib.fifo`` FIFO (``w_rdy`` high after reset), for the FIFOs
-    written here."""
-    return {"w_data": In(width), "w_en": In(1), "w_rdy": Out(1, init=1),
-            "r_data": Out(width), "r_en": In(1), "r_rdy": Out(1)}
+class _Beside(wiring.Component):
+    """What a stage does not carry, kept beside it: a ring of entries, each written as the
+    stage accepts a sample (``write_delay`` clocks later) and read as that sample leaves it.
 
+    No level and no ready flags: the stage's own bounds make them unnecessary. It holds at most
+    ``capacity`` samples (its ``CAPACITY``: its ``i.ready`` is low at that many), so a ring of
+    ``capacity`` entries (rounded up to a power of two) never overwrites an entry not yet read;
+    and a sample leaves it ``latency`` clocks after it was accepted at the soonest (its
+    ``LATENCY``), so its entry, written ``write_delay`` clocks after the acceptance and readable
+    the clock after the write, is there when it leaves if ``write_delay < latency``. The write
+    and the read pointer are two counters, each stepped by its own end's handshake, and the
+    write's address, data and enable are registers: nothing joins the two ends.
 
-class _SideFIFO(wiring.Component):
-    """A ``SyncFIFO`` whose ``w_rdy`` and ``r_rdy`` are registers, not compares of its level.
+    Why not a FIFO: the side FIFO (``amaranth.lib.fifo.SyncFIFO``, its flags made registers)
+    had one ``level`` stepped by both ends, and the two ends sit a stage apart on the part. Its
+    level was the end of the pipeline's worst path on all three nextpnr seeds of run 45
+    (``docs/fpga.md``: from the registered write enable, 7.39 ns, 5.93 of it routing; from the
+    pack slice's ``w_rdy`` through the join's read, 6.76 and 7.17 ns).
 
-    The handshakes of the stage beside it reach these flags; as compares of ``level`` they put
-    the level's LUTs in front of that stage's own logic (``beside_filter.level`` -> the
-    filter's handshakes -> its output buffer was the pipeline's worst path, 9.16 ns). Each
-    flag is the next level's compare made from the level register (``level != depth - 1``,
-    ``level != 1``), chosen by this clock's write and read: the late handshakes pass one LUT.
-    Same ports, same behaviour clock for clock as ``SyncFIFO(width, depth)`` (no ``level``;
-    tested). Its level still steps by an add after the handshake, which ended the worst path
-    of two of run 39's three seeds (the filter's last stage ``valid`` -> the join's take ->
-    the read -> the level, 6.8-7.1 ns); the FIFO written out with its level and pointers
-    stepped from their registers (run 40) placed no better (140.6, 129.8, 142.4 MHz against
-    147.2, 157.8, 141.0; in seed 2 the path still ended at its level), so the library's stays.
+    Ports: ``w_data``, ``w_en`` (the stage's acceptance), ``r_data`` (the entry of the sample
+    at the stage's output), ``r_en`` (that sample taken). ``write_delay`` registers in front of
+    the write let the placer spread the route between the two ends over more clocks.
     """
 
-    def __init__(self, width: int, depth: int):
-        if depth < 2:
-            raise ValueError(f"side FIFO depth must be at least 2, not {depth!r}")
-        self.depth = depth
-        super().__init__(_fifo_ports(width))
+    def __init__(self, width: int, capacity: int, latency: int, write_delay: int = 1):
+        if not (isinstance(capacity, int) and capacity >= 1):
+            raise ValueError(f"capacity must be an integer >= 1, not {capacity!r}")
+        if not (isinstance(write_delay, int) and 0 <= write_delay < latency):
+            raise ValueError(f"write_delay must be an integer in [0, latency = {latency}), "
+                             f"not {write_delay!r}: the entry would not be there when its "
+                             f"sample leaves the stage")
+        self.size = 1 << (capacity - 1).bit_length()
+        self.write_delay = write_delay
+        super().__init__({"w_data": In(width), "w_en": In(1),
+                          "r_data": Out(width), "r_en": In(1)})
 
     def elaborate(self, platform):
         m = Module()
-        fifo = m.submodules.fifo = SyncFIFO(width=len(self.w_data), depth=self.depth)
-        do_write = self.w_en & self.w_rdy
-        do_read = self.r_en & self.r_rdy
-        m.d.comb += [fifo.w_data.eq(self.w_data), fifo.w_en.eq(do_write),
-                     self.r_data.eq(fifo.r_data), fifo.r_en.eq(do_read)]
-        # a write and a read together leave the level as it is: both flags then stay high
-        # (the write needed room, the read an entry)
-        m.d.sync += [
-            self.w_rdy.eq(Mux(do_read, 1, Mux(do_write, fifo.level != self.depth - 1,
-                                              self.w_rdy))),
-            self.r_rdy.eq(Mux(do_write, 1, Mux(do_read, fifo.level != 1, self.r_rdy))),
-        ]
+        mem = m.submodules.mem = memory.Memory(shape=len(self.w_data), depth=self.size,
+                                               init=[])
+        wr = mem.write_port()
+        rd = mem.read_port(domain="comb")
+        w_data, w_en = self.w_data, self.w_en
+        for k in range(self.write_delay):
+            d, e = Signal.like(w_data, name=f"w_data{k}"), Signal(name=f"w_en{k}")
+            m.d.sync += [d.eq(w_data), e.eq(w_en)]
+            w_data, w_en = d, e
+        bits = max(1, (self.size - 1).bit_length())
+        w_ptr, r_ptr = Signal(bits), Signal(bits)
+        m.d.comb += [wr.addr.eq(w_ptr), wr.data.eq(w_data), wr.en.eq(w_en),
+                     rd.addr.eq(r_ptr), self.r_data.eq(rd.data)]
+        with m.If(w_en):
+            m.d.sync += w_ptr.eq(w_ptr + 1)
+        with m.If(self.r_en):
+            m.d.sync += r_ptr.eq(r_ptr + 1)
         return m
 
 
 def _join_into_slice(out, side, joined, slice_, consumer) -> list:
-    """Statements joining a stage's output stream ``out`` with the entry of its ``side`` FIFO
-    into the register slice ``slice_`` (as ``joined``, made by the caller from both), and the
-    slice into the ``consumer`` stream: an item moves only when both are there and the slice
-    has room, so the two never drift apart."""
+    """Statements joining a stage's output stream ``out`` with the entry of its ``side`` ring
+    (:class:`_Beside`) into the register slice ``slice_`` (as ``joined``, made by the caller
+    from both), and the slice into the ``consumer`` stream. The entry of the sample at
+    ``out`` is always there (the ring's bounds), so an item moves whenever the slice has room
+    and the two never drift apart."""
     return [
         slice_.w_data.eq(joined),
-        slice_.w_en.eq(out.valid & side.r_rdy),
-        out.ready.eq(slice_.w_rdy & side.r_rdy),
+        slice_.w_en.eq(out.valid),
+        out.ready.eq(slice_.w_rdy),
         side.r_en.eq(slice_.w_rdy & out.valid),
         consumer.payload.eq(slice_.r_data),
         consumer.valid.eq(slice_.r_rdy),
         slice_.r_en.eq(consumer.ready),
     ]
-
-
-class RegisterSlice(wiring.Component):
-    """A stream register slice (a skid buffer): ``r_data``, ``r_rdy`` and ``w_rdy`` are each a
-    flip-flop, one transfer per clock sustained, one clock of latency, two entries.
-
-    Ports as ``amaranth.lib.fifo`` FIFOs (``w_data``, ``w_en``, ``w_rdy``, ``r_data``,
-    ``r_en``, ``r_rdy``). The output register holds the oldest entry; a write that finds it
-    held and not read this clock goes to the skid register, and ``w_rdy`` is low exactly while
-    the skid register is full. Written by hand because ``amaranth.lib.fifo`` has no FIFO whose
-    ``w_rdy`` is a register: ``SyncFIFOBuffered(depth=3)``, the slice until the thirteenth
-    session, makes ``w_rdy`` a compare of its inner FIFO's level, and that compare -> the
-    filter's output fork -> the side FIFO's read was the pipeline's worst path (6.67 ns, 150.0
-    MHz, ``docs/fpga.md``). Like that slice, no path runs from ``r_en`` to ``w_rdy``.
-    """
-
-    def __init__(self, width: int):
-        if not (isinstance(width, int) and width >= 1):
-            raise ValueError(f"width must be an integer >= 1, not {width!r}")
-        self.width = width
-        super().__init__(_fifo_ports(width))
-
-    def elaborate(self, platform):
-        m = Module()
-        skid = Signal(self.width)
-        skid_full = ~self.w_rdy  # w_rdy is the register: low exactly while the skid is full
-        write = self.w_en & self.w_rdy
-        # the output register is free at this clock's edge: empty, or read now
-        free = ~self.r_rdy | self.r_en
-        with m.If(free):
-            with m.If(skid_full):
-                # the skid's entry is older than any write (none is taken while it is full)
-                m.d.sync += [self.r_data.eq(skid), self.r_rdy.eq(1), self.w_rdy.eq(1)]
-            with m.Else():
-                m.d.sync += [self.r_data.eq(self.w_data), self.r_rdy.eq(write)]
-        with m.Elif(write):
-            m.d.sync += [skid.eq(self.w_data), self.w_rdy.eq(0)]
-        return m
-
-
-def register_slice(width: int) -> RegisterSlice:
-    """A stream register slice between two stages (:class:`RegisterSlice`): outputs and
-    ``w_rdy`` from flip-flops, one transfer per clock. (Depth 2 of ``SyncFIFOBuffered`` would
-    be a 1-entry FIFO whose ``w_rdy`` is low on the clock its entry moves out: half a transfer
-    per clock; ``tests/test_hdl_pipeline.py`` checks the rate.)"""
-    return RegisterSlice(width)
 
 
 class Pipeline(wiring.Component):
@@ -249,16 +217,15 @@ class Pipeline(wiring.Component):
         m = Module()
         m.submodules.stitch = st = stitch.Stitch()
         m.submodules.gate = gate = Gate(depth=self.gate_depth)
-        m.submodules.detect = fd = FilterDetect()
+        m.submodules.detect = fd = FilterDetect(fork_slice=True)
         m.submodules.pack = pk = FramePacketizer(self.fifo_bytes, self.max_samples)
-        # Side FIFOs, each written as its stage accepts a sample and read as the sample leaves
-        # it, so they hold what the stage holds (its CAPACITY); one entry more, and a write
-        # never finds them full.
-        ev = m.submodules.beside_stitch = _SideFIFO(ADC_IN.size, stitch.CAPACITY + 1)
-        # (beside the filter: written the clock after the filter accepts, so it holds at most
-        # the filter's CAPACITY; one entry more, and a write never finds it full)
-        cx = m.submodules.beside_filter = _SideFIFO(_BESIDE_FILTER.size,
-                                                    matched_filter.CAPACITY + 1)
+        # Rings beside the stitch and the filter (`_Beside`), each written as its stage
+        # accepts a sample and read as the sample leaves it; the stage's CAPACITY and LATENCY
+        # bound what they hold and when, so they need no level and refuse nothing.
+        ev = m.submodules.beside_stitch = _Beside(ADC_IN.size, stitch.CAPACITY,
+                                                  stitch.LATENCY, write_delay=1)
+        cx = m.submodules.beside_filter = _Beside(_BESIDE_FILTER.size, fd.y_capacity,
+                                                  fd.y_latency, write_delay=_FILTER_WRITE_DELAY)
 
         wiring.connect(m, wiring.flipped(self.cfg_stitch), st.cfg)
         wiring.connect(m, wiring.flipped(self.cfg_gate), gate.cfg)
@@ -278,11 +245,11 @@ class Pipeline(wiring.Component):
             events.line_sync.eq(adc.line_sync),
             st.i.payload.eq(adc.codes),
             ev.w_data.eq(events),
-            st.i.valid.eq(self.i.valid & ev.w_rdy),
+            st.i.valid.eq(self.i.valid),
             ev.w_en.eq(self.i.valid & st.i.ready),
-            self.i.ready.eq(st.i.ready & ev.w_rdy),
+            self.i.ready.eq(st.i.ready),
         ]
-        # The join goes to the gate through a register slice: the side FIFO's read is a LUT-RAM
+        # The join goes to the gate through a register slice: the ring's read is a LUT-RAM
         # read, and straight into the gate's trigger logic it was the pipeline's worst path
         # (beside_stitch's read address -> its LUT RAM -> gate.renew -> gate.top1, 9.32 ns,
         # 107.3 MHz). The gate takes a sample every clock, so the slice only delays them.
@@ -314,10 +281,9 @@ class Pipeline(wiring.Component):
         # the filter's input handshake -> its surface state, 7.5 ns, 132.8 MHz). A frame is
         # inside from the clock its first sample passes the hold (into this slice), so the
         # bank cannot change under a frame waiting here. The codes ride in the slice and enter
-        # the side FIFO the clock after the filter accepts the sample (below): the side FIFO
-        # then holds at most the samples inside the filter, LATENCY + 1 (it admits no more), so
-        # with CAPACITY + 1 entries it always has room and its w_rdy need gate nothing (written
-        # at the hold, through it, it was the worst path after that: 6.4 ns, 155.5 MHz).
+        # the ring beside the filter after the filter accepts the sample (below): the ring then
+        # holds at most the samples inside the filter, its CAPACITY (written at the hold, the
+        # side FIFO of then gated the hold with its w_rdy: 6.4 ns, 155.5 MHz).
         fs = m.submodules.filter_slice = register_slice(_FILTER_SLICE.size)
         fi = Signal(_FILTER_SLICE)
         fo = _FILTER_SLICE(fs.r_data)
@@ -334,19 +300,18 @@ class Pipeline(wiring.Component):
             fd.i.valid.eq(fs.r_rdy),
             fs.r_en.eq(fd.i.ready),
         ]
-        # The side FIFO's write a clock after the filter accepts the sample (data and enable
-        # registered): the filter's `full` -> its `i.ready` -> the write enable of the side
-        # FIFO's LUT RAM was the pipeline's worst path (8.06 ns, 6.2 of it routing). The
-        # entry is read when the filter's output for that sample comes, LATENCY clocks later.
-        cx_data = Signal(len(cx.w_data), name="cx_w_data")
-        cx_en = Signal(name="cx_w_en")
-        m.d.sync += [cx_data.eq(Cat(fo.codes, fo.beat.x)), cx_en.eq(fs.r_rdy & fd.i.ready)]
-        m.d.comb += [cx.w_data.eq(cx_data), cx.w_en.eq(cx_en)]
+        # The ring beside the filter is written _FILTER_WRITE_DELAY clocks after the filter
+        # accepts the sample (data and enable registered, the ring's `write_delay`): the
+        # filter's `full` -> its `i.ready` -> the write enable of the side FIFO's LUT RAM was
+        # the pipeline's worst path (8.06 ns, 6.2 of it routing), and the ring's two ends sit
+        # a filter apart. The entry is read when the filter's output for that sample comes,
+        # LATENCY clocks later at the soonest.
+        m.d.comb += [cx.w_data.eq(Cat(fo.codes, fo.beat.x)), cx.w_en.eq(fs.r_rdy & fd.i.ready)]
         enters = passes & go.first
 
         # ---- filter output + beside it -> a register slice -> packetizer samples;
         # result -> packetizer. The slice keeps the packetizer's collect logic (its `i.ready`
-        # from the latched frame type and state) off the side FIFO's read and the filter's
+        # from the latched frame type and state) off the (then) side FIFO's read and the filter's
         # output handshake: straight through, that was the pipeline's critical path (11.4 ns,
         # 87.5 MHz) once the packetizer's own size path was cut.
         beside = _BESIDE_FILTER(cx.r_data)

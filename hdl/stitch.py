@@ -37,7 +37,7 @@ __all__ = ["CAPACITY", "LATENCY", "Stitch"]
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
 LATENCY = 6
 #: Samples accepted and not yet taken at the output, at most: ``i.ready`` is low while this
-#: many are inside. The pipeline sizes the side FIFO beside the stitch by it.
+#: many are inside. The pipeline sizes the ring beside the stitch by it.
 CAPACITY = LATENCY + 1
 
 # Largest magnitude of (code - offset): a paper-mode low-channel sample, D_l + 2 * CODE_MAX.

@@ -79,12 +79,24 @@ def test_bound():
     # the surface message's pipeline must fit in the slack the bin_offset floor gives
     assert MIN_BIN_OFFSET == LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1
     assert MIN_BIN_OFFSET <= by_name("bin_offset").lo
+    # the pipeline's join has the fork slice: one beat more, still within the floor
+    join = FilterDetect(fork_slice=True)
+    join._MustUse__silence = True
+    assert join.min_bin_offset == MIN_BIN_OFFSET + 2 == by_name("bin_offset").lo
 
 
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
 @pytest.mark.parametrize("case_name", ["edge16", "defaults", "fixed"])
 def test_verilator(tmp_path, case_name, traffic_name):
     run_join(tmp_path, case_name, traffic_name)
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+def test_verilator_fork_slice(tmp_path, traffic_name):
+    """The join with a register slice before its fork (the pipeline's), template switches
+    from its ``min_bin_offset`` on: the register's floor, 24 (two more than without it: the
+    slice's two entries; ``test_bound``)."""
+    run_join(tmp_path, "edge16", traffic_name, fork_slice=True)
 
 
 def test_lookahead_refused():
@@ -113,7 +125,8 @@ def test_verilator_lookahead(tmp_path, traffic_name):
              bin_offset=join.min_bin_offset, taps_max=LOOKAHEAD_TAPS)
 
 
-def run_join(tmp_path, case_name, traffic_name, lookahead=0, bin_offset=None, taps_max=None):
+def run_join(tmp_path, case_name, traffic_name, lookahead=0, bin_offset=None, taps_max=None,
+             fork_slice=False):
     """One case through the join (``FilterDetect(lookahead=lookahead)``), checked against the
     model; in plain traffic the echo frames' waits within ``frame_gap_clocks``."""
     bank, cfg, frames = case(case_name, bin_offset, taps=taps_max or 64)
@@ -121,6 +134,8 @@ def run_join(tmp_path, case_name, traffic_name, lookahead=0, bin_offset=None, ta
     params = {"lookahead": lookahead} if lookahead else {}
     if taps_max:
         params["taps_max"] = taps_max
+    if fork_slice:
+        params["fork_slice"] = True
     res = run(Design(FilterDetect, **params), tmp_path,
               sources={"coef": coef_source(bank), "i": sample_source(frames, source)},
               sinks={"y": Sink(FILTER_OUT, sink),
@@ -128,7 +143,8 @@ def run_join(tmp_path, case_name, traffic_name, lookahead=0, bin_offset=None, ta
               static={**cfg_ports(cfg, "filter", "cfg_filter"),
                       **cfg_ports(cfg, "peak", "cfg_peak"),
                       "templates": bank.K, "taps": bank.L},
-              label=f"filter_detect_la{lookahead}-{case_name}-{traffic_name}")
+              label=f"filter_detect_la{lookahead}{'_fs' * fork_slice}-{case_name}-"
+                    f"{traffic_name}")
     assert not res.timeout, f"timed out after {res.clocks} clocks"
     assert res.violations == {"y": 0, "o": 0}
     y, k, results = expected(bank, cfg, frames)

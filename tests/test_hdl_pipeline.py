@@ -204,48 +204,59 @@ def test_register_slice_keeps_order_and_loses_nothing(p_write, p_read):
     assert max(held) <= 2 and len(read) > 50
 
 
-@pytest.mark.parametrize("depth", [2, 3, 4, 17])
-def test_side_fifo_is_syncfifo_clock_for_clock(depth):
-    """``_SideFIFO`` (its flags registers, each chosen from the level's compares) against
-    ``amaranth.lib.fifo.SyncFIFO`` of the same depth, the same random writes and reads on
-    4 000 clocks: the same ``w_rdy`` and ``r_rdy`` on every clock, the same ``r_data`` whenever
-    an entry is there."""
+@pytest.mark.parametrize("capacity, latency, write_delay",
+                         [(7, 6, 1), (16, 15, 2), (3, 1, 0), (5, 5, 4), (1, 3, 2)])
+def test_beside_ring_pairs_every_sample(capacity, latency, write_delay):
+    """``_Beside`` beside a stand-in stage that holds at most ``capacity`` samples and lets
+    each leave ``latency`` clocks after it entered at the soonest, in order, its output taken
+    at random (4 000 clocks, random input gaps): the ring shows each sample's entry on the
+    clock it leaves, also when the stage is full and when samples leave at their soonest."""
     from amaranth.hdl import Module
-    from amaranth.lib.fifo import SyncFIFO
     from amaranth.sim import Simulator
 
-    from hdl.pipeline import _SideFIFO
+    from hdl.pipeline import _Beside
 
     top = Module()
-    ours = top.submodules.ours = _SideFIFO(8, depth)
-    ref = top.submodules.ref = SyncFIFO(width=8, depth=depth)
-    rng = np.random.default_rng(depth)
+    ring = top.submodules.ring = _Beside(12, capacity, latency, write_delay)
+    rng = np.random.default_rng(capacity * 100 + latency)
     n = 4000
-    p_w = np.repeat(rng.choice([0.2, 0.5, 0.9], n // 200), 200)  # phases that fill and drain
-    w_en, r_en = rng.random(n) < p_w, rng.random(n) < 1.1 - p_w
-    w_data = rng.integers(0, 256, n)
-    seen = {"full": 0, "reads": 0}
+    p_in = np.repeat(rng.choice([0.3, 0.7, 1.0], n // 200), 200)
+    p_out = np.repeat(rng.choice([0.2, 0.6, 1.0], n // 200), 200)
+    seen = {"full": 0, "soonest": 0, "left": 0}
 
     async def bench(ctx):
+        inside = []  # (data, clock entered), oldest first
         for t in range(n):
-            for f in (ours, ref):
-                ctx.set(f.w_data, int(w_data[t]))
-                ctx.set(f.w_en, int(w_en[t]))
-                ctx.set(f.r_en, int(r_en[t]))
-            got = [ctx.get(ours.w_rdy), ctx.get(ours.r_rdy)]
-            want = [ctx.get(ref.w_rdy), ctx.get(ref.r_rdy)]
-            assert got == want, (t, got, want)
-            if want[1]:
-                assert ctx.get(ours.r_data) == ctx.get(ref.r_data), t
-                seen["reads"] += int(r_en[t])
-            seen["full"] += not want[0]
+            leaves = bool(inside) and t - inside[0][1] >= latency and rng.random() < p_out[t]
+            if leaves:
+                data, entered = inside.pop(0)
+                assert ctx.get(ring.r_data) == data, (t, entered)
+                seen["soonest"] += t - entered == latency
+                seen["left"] += 1
+            ctx.set(ring.r_en, int(leaves))
+            enters = len(inside) < capacity and rng.random() < p_in[t]
+            seen["full"] += len(inside) == capacity
+            if enters:
+                inside.append((int(rng.integers(0, 1 << 12)), t))
+                ctx.set(ring.w_data, inside[-1][0])
+            ctx.set(ring.w_en, int(enters))
             await ctx.tick()
 
     sim = Simulator(top)
     sim.add_clock(1e-6)
     sim.add_testbench(bench)
     sim.run()
-    assert seen["full"] > 20 and seen["reads"] > 500  # both ends exercised
+    assert seen["left"] > 500 and seen["full"] > 50 and seen["soonest"] > 50
+
+
+def test_beside_ring_refuses_a_write_later_than_the_stage():
+    from hdl.pipeline import _Beside
+
+    with pytest.raises(ValueError, match=r"^write_delay must be an integer in \[0, latency = "
+                                         r"6\), not 6: the entry would not be there"):
+        _Beside(8, 7, 6, write_delay=6)
+    with pytest.raises(ValueError, match=r"^capacity must be an integer >= 1, not 0$"):
+        _Beside(8, 0, 6)
 
 
 def test_register_slice_width_error():
