@@ -233,7 +233,7 @@ def _strip_times(res):
 SCHED_METHODS = ("fixed_mf", "peaks_float")
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="class")
 def two_chunks():
     """Chunks of 3 shots (two per point of 5 shots, merged in chunk order) for one class."""
     with pytest.MonkeyPatch.context() as mp:
@@ -250,7 +250,7 @@ def sched_sweep():
                              seed=7)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="class")
 def sched_reference(two_chunks, sched_sweep):
     """:func:`run_sweeps` of ``sched_sweep`` on the synchronous scheduler."""
     return run_sweeps([sched_sweep], scheduler="sync", progress=False)
