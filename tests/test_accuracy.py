@@ -307,8 +307,6 @@ def regimes_result():
                          progress=False, seed=5, regimes=small)
 
 
-# one worker computes the regimes fixture (about a minute), not each
-@pytest.mark.xdist_group("regimes")
 class TestRegimes:
     def test_every_regime_of_the_issue(self):
         assert [r.name for r in REGIMES] == ["shallow", "deep", "turbid", "one_channel",
@@ -356,8 +354,6 @@ class TestRegimes:
         assert ran and all(0.0 <= q["failure_rate"] <= 1.0 for q in ran)
 
 
-# one worker computes the regimes fixture (about a minute), not each
-@pytest.mark.xdist_group("regimes")
 class TestChartsAndResults:
     def test_charts_and_tables(self, tmp_path, regimes_result):
         rows = [_row(float(d), 0.01, 0.008, 1.0) for d in (1, 2, 5)]

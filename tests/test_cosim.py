@@ -29,11 +29,6 @@ from model.link import BANK_WORDS, PacketType, body_crc, encode_packet
 from model.registers import REGISTERS, Config
 from sim.scene import preset
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("cosim")
-
 POOL, SEED, PRF_CLOCKS = 16, 5, 1000
 
 

@@ -31,11 +31,6 @@ from hdl.export import to_verilog
 from hdl.synth import ECP5_SYNTH
 from hdl.tb.cosim import BENCH_DIR, Design, build
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_bram")
-
 # ---------------------------------------------------------------------------------------------
 # Tiling
 

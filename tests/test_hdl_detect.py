@@ -27,11 +27,6 @@ from model.matched_filter import Bank, template_index
 from model.registers import Config, by_name
 from model.stitch import stitch_config
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_detect")
-
 N_ECHO_FRAMES = 5
 
 

@@ -32,11 +32,6 @@ from model.registers import Config, by_name
 from model.stitch import stitch_config
 from model.vectors import lane_samples, lane_words
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_detect_lanes")
-
 LANES, TAPS_MAX = 3, 8
 N_ECHO_FRAMES = 4
 

@@ -27,11 +27,6 @@ from model.layouts import PEAK_RECORD, FrameType
 from model.link import PacketType, encode_packet, packet_size
 from model.registers import Config
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_frame")
-
 # the FIFO holds every packet of a traffic test (18 164 bytes at most), so only the
 # admission test, with more, drops
 CAPACITY, MAX_SAMPLES = 20000, 768

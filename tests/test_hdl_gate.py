@@ -24,11 +24,6 @@ from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS, GateStream
 from model.layouts import FRAME_HEADER, FrameFlag
 from model.registers import Config
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_gate")
-
 FINE_MAX = (1 << FINE_BITS) - 1
 #: Counter start values of the "limits" build: each limit is reached within a few frames.
 LIMITS = {"fine_start": FINE_MAX - 13, "coarse_start": (1 << COARSE_BITS) - 3,

@@ -28,11 +28,6 @@ from model.registers import Config, by_name
 from model.stitch import stitch_config
 from model.vectors import lane_words
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_interleave")
-
 LANES, ENGINES, TAPS_MAX, STORE_BEATS = 3, 3, 8, 16
 N_ECHO_FRAMES = 6
 PARAMS = {"lanes": LANES, "engines": ENGINES, "taps_max": TAPS_MAX, "store_beats": STORE_BEATS}

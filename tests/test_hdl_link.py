@@ -34,11 +34,6 @@ from model.link import (
 from model.matched_filter import K_MAX, L_MAX
 from model.registers import REGISTERS
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_link")
-
 RX_BUFFER = 2048  # Link's default
 # status inputs from the top level, distinct bytes so a misplaced field shows
 STATUS_IN = {"frames_sent": 0x11223344, "frames_dropped": 0x55667788, "fifo_level": 0x0A0B0C0D,

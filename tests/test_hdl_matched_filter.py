@@ -32,11 +32,6 @@ from model.matched_filter import COEF_WIDTH, L_MAX, Bank, matched_filter, templa
 from model.registers import Config
 from model.stitch import stitch_config
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_matched_filter")
-
 S16_LO, S16_HI = -(1 << 15), (1 << 15) - 1
 
 

@@ -43,11 +43,6 @@ from model.matched_filter import K_MAX, L_MAX, Bank, matched_filter, template_in
 from model.registers import Config
 from model.vectors import lane_samples, lane_words
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_matched_filter_lanes")
-
 DESIGNS = {"lanes4_taps16": (4, 16), "lanes3_taps8": (3, 8)}
 
 

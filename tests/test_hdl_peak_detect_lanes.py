@@ -48,11 +48,6 @@ from model.peak_detect import peak_detect
 from model.registers import Config
 from model.vectors import lane_words
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_peak_detect_lanes")
-
 LANES = (4,)
 
 

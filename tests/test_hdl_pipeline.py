@@ -26,11 +26,6 @@ from model.layouts import FrameType
 from model.link import PacketType, encode_packet, packet_size
 from model.registers import Config
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_pipeline")
-
 BANK_ID = 3
 N_FRAMES = 5
 

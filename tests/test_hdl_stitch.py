@@ -20,11 +20,6 @@ from hdl.tb.streams import BACKPRESSURE, IDLE, PLAIN, TRAFFIC
 from model.registers import Config
 from model.stitch import CODE_MAX, stitch_config
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_stitch")
-
 CONFIGS = {
     # paper mode ignores threshold, baselines and ratios: odd values here prove it
     "paper": Config(stitch_mode=0, sat_threshold=7, baseline_l=3, baseline_m=200, ratio_m_q8=1),

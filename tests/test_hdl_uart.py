@@ -19,11 +19,6 @@ from hdl.tb import cosim
 from hdl.tb.cosim import Design
 from hdl.uart import BITS_PER_BYTE, MIN_DIVISOR, UartRx, UartTx
 
-# One worker builds this module's Verilator designs and runs its tests: spread over two
-# workers, the second waited on the first's build lock (tens of seconds a design, fresh
-# clone), idle.
-pytestmark = pytest.mark.xdist_group("hdl_uart")
-
 
 class UartPair(wiring.Component):
     """A transmitter and a receiver, unconnected: the design the cocotb bench drives."""

@@ -19,8 +19,6 @@ def res():
     return bench_speed(shots=4, repeats=2)
 
 
-# one worker makes the batch (about 30 s), not each
-@pytest.mark.xdist_group("speed")
 class TestBenchSpeed:
     def test_batch(self, res):
         lo, hi = accuracy.SUMMARY_RANGE_M
