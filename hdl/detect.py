@@ -150,7 +150,7 @@ class FilterDetect(wiring.Component):
         #: fewest clocks from a beat's acceptance to its ``y`` (what travels beside the join
         #: in the pipeline is sized and checked by them)
         self.y_capacity = CAPACITY + slice_beats
-        self.y_latency = LATENCY + int(self.fork_slice)
+        self.y_latency = self._filter.latency + int(self.fork_slice)
         #: clocks a frame costs beyond its beats (the detector's wait for its threshold)
         self.frame_gap_clocks = self._detect.threshold_bubble
         super().__init__({**join_ports(lanes),

@@ -33,7 +33,7 @@ from model.link import FIFO_BYTES
 from model.matched_filter import K_MAX, L_MAX
 
 from . import matched_filter, stitch
-from ._primitives import RegisterSlice, _step, register_slice
+from ._primitives import RegisterSlice, _delay, _step, register_slice
 from .detect import FilterDetect
 from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, PACK_IN, FramePacketizer
 from .gate import Gate
@@ -99,11 +99,8 @@ class _Beside(wiring.Component):
                                                init=[])
         wr = mem.write_port()
         rd = mem.read_port(domain="comb")
-        w_data, w_en = self.w_data, self.w_en
-        for k in range(self.write_delay):
-            d, e = Signal.like(w_data, name=f"w_data{k}"), Signal(name=f"w_en{k}")
-            m.d.sync += [d.eq(w_data), e.eq(w_en)]
-            w_data, w_en = d, e
+        w_data = _delay(m, self.w_data, self.write_delay, "w_data")[-1]
+        w_en = _delay(m, self.w_en, self.write_delay, "w_en")[-1]
         bits = max(1, (self.size - 1).bit_length())
         w_ptr, r_ptr = Signal(bits), Signal(bits)
         m.d.comb += [wr.addr.eq(w_ptr), wr.data.eq(w_data), wr.en.eq(w_en),
