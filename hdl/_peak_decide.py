@@ -89,6 +89,9 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     surface's record is taken a clock after the last beat's D4 (``s_fin``), the bottom's at C.
     """
     cfg, L, LA, depth = top.cfg, top.lanes, top.lookahead, levels
+    # bottom_rule decoded into registers (written between frames): the rule then costs no
+    # LUT of its own on the decision paths
+    rule = [_reg(m, cfg.bottom_rule == r, 1, f"rule_is{r}", True) for r in range(3)]
     rec = record_layout(d1.k.shape().elem_shape)
     d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos = _local_maxima(
         m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, stats.bound, stats.sbound)
@@ -112,9 +115,9 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     elig = _delay(m, d3_elig, 2 * depth + 1, "elig")
     run_min = _running_minimum(m, L, depth, pm, seg, vd)
     elig_v = _reg(m, elig[-1], L, "elig_v")
-    win, node = _best_lane(m, cfg, L, depth, bt_r, run_min, elig_v,
+    win, node = _best_lane(m, rule, L, depth, bt_r, run_min, elig_v,
                            stats.cur_thr_k if LA else stats.thr, LA)
-    return FrameEnd(s_fin, *_bottom(m, cfg, L, rec, bt_b, bt_c[0], bt_c[1], vd, win, node))
+    return FrameEnd(s_fin, *_bottom(m, rule, L, rec, bt_b, bt_c[0], bt_c[1], vd, win, node))
 
 
 def _lane_record(m, rec, bt, j, n):
@@ -308,7 +311,7 @@ def _running_minimum(m, L, depth, pm, seg, vd):
     return [_reg(m, sel[j], _Y, f"run_min{j}") for j in range(L)]
 
 
-def _best_lane(m, cfg, L, depth, e_r, run_min, elig_v, thr, LA):
+def _best_lane(m, rule, L, depth, e_r, run_min, elig_v, thr, LA):
     """R, K and the max-tree: the key per lane, eligible and (rule 2) rising above ``thr``,
     then the best lane, from the beat's samples at R (``e_r``). Returns the tree's root
     (``ok``, ``key``, ``idx``; registered with the beat 4 depth + 6 clocks after D3, B1) and
@@ -321,8 +324,8 @@ def _best_lane(m, cfg, L, depth, e_r, run_min, elig_v, thr, LA):
     keys = []
     for j in range(L):
         b = e_r[j + 1]
-        keys.append(_reg(m, Mux(cfg.bottom_rule == 0, j,
-                                Mux(cfg.bottom_rule == 1, b, b - run_min[j])), _KEY, f"key{j}"))
+        keys.append(_reg(m, Mux(rule[0], j, Mux(rule[1], b, b - run_min[j])), _KEY,
+                         f"key{j}"))
     # (the rise's compare with thr registered on its own: with the AND into ok it was a worst
     # path)
     # against thr capped at the largest key, registered once per frame (the 33-bit compare
@@ -331,7 +334,7 @@ def _best_lane(m, cfg, L, depth, e_r, run_min, elig_v, thr, LA):
         thr_k = _reg(m, thr_as_key(thr), unsigned(_KEY.width - 1), "thr_k")
     else:  # the frame's, carried with its beats from D1 (go) to here
         thr_k = _delay_to(m, thr, 2 * depth + 6, "la_thr_k")
-    over = [_reg(m, (cfg.bottom_rule != 2) | _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1,
+    over = [_reg(m, ~rule[2] | _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1,
                  f"key_over{j}") for j in range(L)]
     keys = [_reg(m, k, _KEY, f"key_k{j}") for j, k in enumerate(keys)]
     elig_r = _delay(m, elig_v, 2, "elig_r")[-1]
@@ -362,7 +365,7 @@ def _best_lane(m, cfg, L, depth, e_r, run_min, elig_v, thr, LA):
     return level[0], node
 
 
-def _bottom(m, cfg, L, rec, bt, last_c, long_c, vd, win, node):
+def _bottom(m, rule, L, rec, bt, last_c, long_c, vd, win, node):
     """B1, B2: the bottom against the frame's best so far, with the beat at B2 (``bt``); C:
     its record, with the beat's ``last`` and ``long`` at C (``last_c``, ``long_c``). Returns
     the frame's bottom record at its last beat (``b_fin``), ``end_valid`` and
@@ -382,7 +385,7 @@ def _bottom(m, cfg, L, rec, bt, last_c, long_c, vd, win, node):
     b_valid = vd[-2]
     found_b = b_found & ~bt.first
     take, took_prev = Signal(name="b_take"), Signal(name="b_took_prev")
-    m.d.comb += take.eq(b_valid & win.ok & ((cfg.bottom_rule == 0) | ~found_b
+    m.d.comb += take.eq(b_valid & win.ok & (rule[0] | ~found_b
                                             | Mux(took_prev, gt_p, gt_x)))
     with m.If(b_valid):
         m.d.sync += [b_found.eq(found_b | take), took_prev.eq(take)]
@@ -393,7 +396,7 @@ def _bottom(m, cfg, L, rec, bt, last_c, long_c, vd, win, node):
     c_rec = _reg(m, recs[win.idx], rec, "c_rec")
     # the record's rise: rule 2's key (the winner's, registered beside c_rec), saturated to
     # u16 from a register (the key's high bits) at C, not before the tree's compare
-    rise_k = _reg(m, Mux(cfg.bottom_rule == 2, win.key, 0), _KEY, "c_rise_key")
+    rise_k = _reg(m, Mux(rule[2], win.key, 0), _KEY, "c_rise_key")
     w = _RISE.width
     c_rise = Signal(_RISE, name="c_rise")
     m.d.comb += c_rise.eq(Mux(rise_k[w:].any(), (1 << w) - 1, rise_k[:w]))

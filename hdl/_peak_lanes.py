@@ -193,8 +193,6 @@ def elaborate(top, platform):
     k_shape = d.k.shape().elem_shape
 
     # ---- positions from the registers (registered: write them between frames) ----
-    P = Signal(range((1 << _P_MAX_LOG2) + 1))
-    m.d.comb += P.eq(1 << cfg.noise_log2)
     # noise_log2 one-hot (0 to its largest), for the window shifts: an AND-OR of shifted
     # copies is two LUT levels, where Yosys's shifter was three and a mux (a worst path)
     log2_is = [_reg(m, cfg.noise_log2 == k, 1, f"log2_is{k}", True)
@@ -203,32 +201,38 @@ def elaborate(top, platform):
     def window_shift(value):
         """``value >> noise_log2`` (``noise_log2`` at most its register's largest)."""
         return reduce(or_, [Mux(on, value >> k, 0) for k, on in enumerate(log2_is)])
-    W = top.taps - 1
+    # The positions are sums of `taps - 1` and multiples of P = 2^noise_log2, made in three
+    # stages of registers, each one add: W and P, then W + P and W + 2P, then the bounds
+    # less a constant. A chain of three adds from the ports was a path of ten cells once the
+    # ports were timed, as they are in the device (`hdl.top`: the link's registers).
+    pos = signed(_POS.width + 1)
+    W = _reg(m, top.taps - 1, pos, "w_taps", True)
+    P = _reg(m, 1 << cfg.noise_log2, range((1 << _P_MAX_LOG2) + 1), "p_noise", True)
     # (reset-less: they follow the registers through a reset, so the first beat meets them).
     # Per lane j the bound minus j, so that "sample base + j at or past X" is one compare of
     # the beat's base (an add before the compare was the worst path).
     def at_lanes(value, name):
-        return [_reg(m, value - j, signed(_POS.width + 1), f"{name}{j}", True) for j in range(L)]
+        return [_reg(m, value - j, pos, f"{name}{j}", True) for j in range(L)]
 
-    mu_lo, mu_hi, dev_hi = at_lanes(W, "mu_lo"), at_lanes(W + P, "mu_hi"), \
-        at_lanes(W + 2 * P, "dev_hi")
-    mu_end, dev_end = at_lanes(W + P - 1, "mu_end"), at_lanes(W + 2 * P - 1, "dev_end")
-    cand_at = at_lanes(W + 2 * P + 1, "cand_at")  # lane j: centre base + j - 1 >= W + 2P
+    WP, W2P = _reg(m, W + P, pos, "w_p", True), _reg(m, W + 2 * P, pos, "w_2p", True)
+    mu_lo, mu_hi, dev_hi = at_lanes(W, "mu_lo"), at_lanes(WP, "mu_hi"), at_lanes(W2P, "dev_hi")
+    mu_end, dev_end = at_lanes(WP - 1, "mu_end"), at_lanes(W2P - 1, "dev_end")
+    cand_at = at_lanes(W2P + 1, "cand_at")  # lane j: centre base + j - 1 >= W + 2P
     # A beat of c samples at base reaches W + 2P + 1 when base + c >= W + 2P + 2. A frame's
     # first beat (base 0) does when c does (first_needs); any other beat follows a full beat
     # of its frame, so the flags for it are registered as that beat is accepted: base_in + L
     # + c >= W + 2P + 2, i.e. base_in >= need_at[c] (one compare each; the compares on the
     # live beat, after an add, were the worst path twice).
-    need_at = [_reg(m, W + 2 * P + 2 - L - c, signed(_POS.width + 1), f"need_at{c}", True)
-               for c in range(L + 1)]
-    first_needs = [_reg(m, W + 2 * P + 2 <= c, 1, f"first_needs{c}", True)
-                   for c in range(L + 1)]
+    need_at = [_reg(m, W2P + (2 - L - c), pos, f"need_at{c}", True) for c in range(L + 1)]
+    first_needs = [_reg(m, W2P + 2 <= c, 1, f"first_needs{c}", True) for c in range(L + 1)]
     ms_le = [_reg(m, cfg.min_sep <= j, 1, f"ms_le{j}", True) for j in range(3 * L)]
     # min_sep + j - 1 per lane, so that "c + min_sep" of a lane's centre is one add; capped
-    # where no centre of a frame can reach it
+    # where no centre of a frame can reach it (from min_sep - 1 registered: an add and a
+    # compare side by side, then the choice)
     cap = (1 << _POS.width) - 1
-    ms_lane = [_reg(m, Mux(cfg.min_sep + (j - 1) > cap, cap, cfg.min_sep + (j - 1)),
-                    signed(_POS.width + 1), f"ms_lane{j}", True) for j in range(L)]
+    ms_m1 = _reg(m, cfg.min_sep - 1, signed(len(cfg.min_sep) + 1), "ms_m1", True)
+    ms_lane = [_reg(m, Mux(ms_m1 > cap - j, cap, ms_m1 + j), pos, f"ms_lane{j}", True)
+               for j in range(L)]
 
     # ---- D1: the beat being decided, held while it waits; a skid register before it ----
     # i.ready is a register (the skid is empty) and D1 moves on registered conditions only:

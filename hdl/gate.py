@@ -26,7 +26,7 @@ from amaranth.lib.wiring import In, Out
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
 from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 
-from ._primitives import _le, _step, _Store
+from ._primitives import _le, _reg, _step, _Store
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
 __all__ = ["DROP_BITS", "LATENCY", "Gate"]
@@ -138,6 +138,34 @@ class Gate(wiring.Component):
         step = self.i.valid  # one sample clock of the specification
         m.d.comb += self.i.ready.eq(1)
 
+        # The registers, and what the gate makes of them, one clock after the ports: every
+        # path from a register then starts at a register of the gate's own and is a LUT or a
+        # carry chain deep. In the device (`hdl.top`) the ports are the link's registers, and
+        # paths from them are timed like any other: read live, `fine_div` through the tick
+        # into the fine counter held the gate alone at 137 MHz. So a register written at one
+        # clock acts from the next (the model's "between frames", to the clock).
+        def q(value, shape, name):
+            return _reg(m, value, shape, f"{name}_q", True)
+
+        gate_len, gate_delay, fine_div = cfg.gate_len, cfg.gate_delay, cfg.fine_div
+        live_length = gate_len | (gate_len == 0)  # gate_len = 0 counts as 1
+        length = q(live_length, gate_len.shape(), "length")
+        len1 = q(gate_len <= 1, 1, "len1")  # length == 1
+        len2 = q(gate_len == 2, 1, "len2")  # length == 2
+        no_delay = q(gate_delay == 0, 1, "no_delay")
+        delay1 = q(gate_delay == 1, 1, "delay1")
+        delay2 = q(gate_delay == 2, 1, "delay2")
+        delay_m2 = q(gate_delay - 2, gate_delay.shape(), "delay_m2")
+        # the counters' loads while idle: length less 2 (no delay: the trigger's sample is
+        # kept) or less 1, chosen at the load
+        len_m1 = q(live_length - 1, gate_len.shape(), "len_m1")
+        len_m2 = q(live_length - 2, gate_len.shape(), "len_m2")
+        div_le1 = q(fine_div <= 1, 1, "div_le1")
+        div2 = q(fine_div == 2, 1, "div2")
+        div_m2 = q(fine_div - 2, fine_div.shape(), "div_m2")
+        frame_type = q(cfg.frame_type, cfg.frame_type.shape(), "frame_type")
+        bank_id = q(self.bank_id, self.bank_id.shape(), "bank_id")
+
         # Frame store: the samples and the headers of the admitted frames. The admission test
         # below (length <= free, free counting depth - entries held) guarantees room for every
         # write.
@@ -168,14 +196,14 @@ class Gate(wiring.Component):
         sat_now = ~sync & fine_sat
         coarse_now = Mux(sync, coarse1, coarse)  # modulo 2^24 by the signal's width
         period = sync | renew  # this step is the first of a tick period
-        tick = Mux(period, cfg.fine_div <= 1, rem0)
+        tick = Mux(period, div_le1, rem0)
         with m.If(step):
             with m.If(sync):
                 m.d.sync += [coarse.eq(coarse1), coarse1.eq(coarse1 + 1)]
             with m.If(tick):
                 m.d.sync += renew.eq(1)
             with m.Elif(period):
-                m.d.sync += [renew.eq(0), rem.eq(cfg.fine_div - 2), rem0.eq(cfg.fine_div == 2)]
+                m.d.sync += [renew.eq(0), rem.eq(div_m2), rem0.eq(div2)]
             with m.Else():
                 m.d.sync += [rem.eq(rem - 1), rem0.eq(rem == 1)]
             with m.If(sync):
@@ -207,10 +235,6 @@ class Gate(wiring.Component):
         fresh0 = Signal()  # fresh & wait0: the next step is the open frame's first sample
         keep = Signal()  # the open frame was admitted to the FIFOs
         start = p.trigger & ~busy
-        # gate_len = 0 counts as 1: only bit 0 differs, so only it waits for the zero test
-        length = cfg.gate_len | (cfg.gate_len == 0)
-        no_delay = cfg.gate_delay == 0
-        len1 = length == 1
         cur_wait0 = Mux(busy, wait0, no_delay)
         cur_left1 = Mux(busy, left1, len1)
 
@@ -224,13 +248,13 @@ class Gate(wiring.Component):
         ]
         with m.If(start):
             m.d.comb += [
-                h_now.frame_type.eq(cfg.frame_type),
+                h_now.frame_type.eq(frame_type),
                 h_now.flags.eq(Mux(sat_now, int(FrameFlag.FINE_SATURATED), 0)),
                 h_now.fine_time.eq(fine_now),
                 h_now.coarse_event.eq(coarse_now),
                 h_now.shot.eq(shot),
                 h_now.length.eq(length),
-                h_now.bank_id.eq(self.bank_id),
+                h_now.bank_id.eq(bank_id),
             ]
 
         # Room in the FIFOs, counted here rather than read from their `level`: `free` is depth
@@ -294,13 +318,13 @@ class Gate(wiring.Component):
         # the trigger and the `gate_delay` zero test; only `busy` decides on them.
         with m.If(~busy):
             m.d.sync += [
-                wait_m1.eq(cfg.gate_delay - 2),
-                wait1.eq(cfg.gate_delay == 2),
-                wait0.eq(no_delay | (cfg.gate_delay == 1)),
-                fresh0.eq(~no_delay & (cfg.gate_delay == 1)),
+                wait_m1.eq(delay_m2),
+                wait1.eq(delay2),
+                wait0.eq(no_delay | delay1),
+                fresh0.eq(delay1),
                 fresh.eq(~no_delay),
-                left_m1.eq(Mux(no_delay, length - 2, length - 1)),
-                left1.eq(Mux(no_delay, length == 2, len1)),
+                left_m1.eq(Mux(no_delay, len_m2, len_m1)),
+                left1.eq(Mux(no_delay, len2, len1)),
             ]
         with m.Elif(step & ~wait0):  # a sample skipped
             # wait_m1 == 1 as "not wait1 and wait_m1 < 2" (wait_m1 >= 0 on a skip): a carry

@@ -31,7 +31,7 @@ from amaranth.lib.wiring import In, Out
 from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
-from ._primitives import _fills, _le, _output_buffer, _step
+from ._primitives import _fills, _le, _output_buffer, _reg, _step
 from .layouts import STITCHED, config_signature
 
 __all__ = [
@@ -598,12 +598,15 @@ class MatchedFilter(wiring.Component):
         with m.If(self.surface.valid & (self.surface.payload.tag == tag) & ~(accept & d.first)):
             m.d.sync += s_pend.eq(1)
 
-        k_max = self.templates - 1
+        # K - 1 and "K >= 2" registered from the bank's shape (written between frames), so
+        # that the template decision starts at registers, not at a subtraction from the port
+        k_max = _reg(m, self.templates - 1, (self.templates - 1).shape(), "k_max", True)
+        two_plus = _reg(m, self.templates >= 2, 1, "two_plus", True)
         k_sel = Signal(_K_SHAPE)
         with m.If(d.first):
             m.d.comb += k_sel.eq(0)
         with m.Elif(match):
-            m.d.comb += k_sel.eq(Mux(k_max >= 1, 1, 0))
+            m.d.comb += k_sel.eq(two_plus)
         with m.Elif(active & bin_end):
             m.d.comb += k_sel.eq(Mux(k >= k_max, k, k + 1))
         with m.Else():
@@ -663,16 +666,28 @@ class MatchedFilter(wiring.Component):
         # 5.6 the route out of `first2`); the per-tap flags are distinct functions of L, so
         # synthesis keeps them apart, and each drives its own 16 registers. So `taps` is read
         # in the clock after a sample is accepted.
+        # Where tap j stands against L (`at{j}`: j = L - 1; `in{j}`: j < L - 1) is registered
+        # from `taps` (written between frames) in two stages: the compares of L's high and low
+        # bits (`L >> 3`, `L & 7`) with each value, then each tap's flags, one LUT of three of
+        # them. The flags' compares of a subtraction from the port, sharing their logic, were
+        # five cells deep: a path of the device, whose `taps` is a register of the link.
         L = self.taps
+        hi, lo = L[3:], L[:3]
+        hi_eq = [_reg(m, hi == h, 1, f"l_hi_eq{h}", True) for h in range((L_MAX + 2 >> 3) + 1)]
+        hi_gt = [_reg(m, hi > h, 1, f"l_hi_gt{h}", True) for h in range((L_MAX + 2 >> 3) + 1)]
+        lo_eq = [_reg(m, lo == v, 1, f"l_lo_eq{v}", True) for v in range(8)]
+        lo_ge = [_reg(m, lo >= v, 1, f"l_lo_ge{v}", True) for v in range(8)]
         shift1, x1, first1 = Signal(), Signal(STITCHED), Signal()
         x2 = Signal(STITCHED)
         m.d.sync += [shift1.eq(accept_dl), x1.eq(d.x), first1.eq(d.first), x2.eq(x1)]
         r = [Signal(STITCHED, name=f"r{j}") for j in range(L_MAX)]
         for j in range(L_MAX):
             ld, mv, zr = (Signal(name=f"{w}{j}") for w in ("ld", "mv", "zr"))
-            at = L - 1 == j
-            m.d.sync += [ld.eq(shift1 & at), mv.eq(shift1 & ~at & ~first1 & (j < L - 1)),
-                         zr.eq(shift1 & ~at & (first1 | ~(j < L - 1)))]
+            v, w = j + 1, j + 2  # at: L == v; in: L >= w
+            at = _reg(m, hi_eq[v >> 3] & lo_eq[v & 7], 1, f"at{j}", True)
+            inside = _reg(m, hi_gt[w >> 3] | (hi_eq[w >> 3] & lo_ge[w & 7]), 1, f"in{j}", True)
+            m.d.sync += [ld.eq(shift1 & at), mv.eq(shift1 & ~at & ~first1 & inside),
+                         zr.eq(shift1 & ~at & (first1 | ~inside))]
             older = r[j + 1] if j + 1 < L_MAX else 0
             with m.If(ld | mv | zr):
                 m.d.sync += r[j].eq(Mux(ld, x2, Mux(mv, older, 0)))

@@ -93,17 +93,25 @@ class PortShell(Elaboratable):
         The static inputs, ports of the shell.
     """
 
-    def __init__(self, core):
+    #: Where the static inputs come from: ``pins`` (a pin per bit, untimed) or ``registers``
+    #: (a second shift register fed by the pin ``cfg_din``, timed like any register).
+    STATIC_SOURCES = ("pins", "registers")
+
+    def __init__(self, core, static: str = "pins"):
         from amaranth.hdl import ClockDomain, Value
         from amaranth.lib.wiring import Flow
 
+        if static not in self.STATIC_SOURCES:
+            raise ValueError(f"static must be one of {self.STATIC_SOURCES}, not {static!r}")
         self.core = core
+        self.static_source = static
         # no reset network: in context a reset from a pin is a net to every flip-flop's LSR
         # through the fabric, which kept the one-lane join's router ripping up for minutes
         # (out of context the reset port is undriven and never routed); with it gone the
         # join routes in 39 s at 131.1 MHz (out of context: 129.3 MHz)
         self.domain = ClockDomain("sync", reset_less=True)
         self.din, self.dout = Signal(name="din"), Signal(name="dout")
+        self.cfg_din = Signal(name="cfg_din")
         self.static = []
         self._pinned, self._ins, self._outs = [], [], []  # (pin, port); ports; ports
         for path, member, value in core.signature.flatten(core):
@@ -121,6 +129,14 @@ class PortShell(Elaboratable):
     #: ``frame_idle``) is timed through the shell's registers.
     STATIC_PREFIX, STATIC_NAMES = "cfg", ("templates", "taps", "bank_id")
 
+    @property
+    def ports(self) -> list:
+        """The shell's top-level ports: the clock, ``din``, ``dout``, and the static pins (or
+        ``cfg_din`` when the static inputs come from registers)."""
+        if self.static_source == "pins":
+            return [self.domain.clk, self.din, self.dout, *self.static]
+        return [self.domain.clk, self.din, self.dout, self.cfg_din]
+
     def is_static(self, name: str) -> bool:
         """Whether the core's port ``name`` is a static input (an input left on a pin)."""
         from amaranth.lib.wiring import Flow
@@ -137,7 +153,15 @@ class PortShell(Elaboratable):
         m.domains.sync = self.domain
         m.submodules.core = self.core
         ins, outs = self._ins, self._outs
-        m.d.comb += [port.eq(pin) for pin, port in self._pinned]  # static: straight from pins
+        if self.static_source == "pins":  # static: straight from pins, untimed
+            m.d.comb += [port.eq(pin) for pin, port in self._pinned]
+        elif self._pinned:  # static: from a register chain of their own, timed
+            cfg = Signal(sum(len(v) for _, v in self._pinned), name="shell_cfg")
+            m.d.sync += cfg.eq(Cat(self.cfg_din, cfg[:-1]))
+            at = 0
+            for _, v in self._pinned:
+                m.d.comb += v.eq(cfg[at:at + len(v)])
+                at += len(v)
         chain = Signal(sum(len(v) for v in ins), name="shell_in")
         m.d.sync += chain.eq(Cat(self.din, chain[:-1]))
         at = 0
@@ -221,7 +245,8 @@ CONTEXTS = ("out", "in")
 
 def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
-               context: str = "out", placer: str = "heap", seed: int = 1) -> dict:
+               context: str = "out", placer: str = "heap", seed: int = 1,
+               static: str = "pins") -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -271,6 +296,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
     if placer not in PLACERS:
         raise ValueError(f"placer must be one of {PLACERS}, not {placer!r}")
+    if static not in PortShell.STATIC_SOURCES:
+        raise ValueError(f"static must be one of {PortShell.STATIC_SOURCES}, not {static!r}")
     if not (isinstance(seed, int) and not isinstance(seed, bool) and 1 <= seed < 2 ** 31):
         raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
     components = synth_components()
@@ -294,10 +321,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
         if context == "in":
-            shell = PortShell(component)
+            shell = PortShell(component, static=static)
             text = verilog.convert(shell, name=name, emit_src=False, platform=ECP5_SYNTH,
-                                   ports=[shell.domain.clk, shell.din, shell.dout,
-                                          *shell.static])
+                                   ports=shell.ports)
             placement = ["--lpf-allow-unconstrained"]
         else:
             text = verilog.convert(component, name=name, emit_src=False, platform=ECP5_SYNTH)
@@ -332,6 +358,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "placer": placer,
         "seed": seed,
         "context": context,
+        **({"static": static} if context == "in" else {}),
         "worst_path": worst_path(report),
         "seconds": round(time.perf_counter() - t0, 1),
     }

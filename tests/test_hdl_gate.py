@@ -66,7 +66,10 @@ class Scenario:
             trig[at + np.asarray(s.triggers, int)] = True
             sync[at + np.asarray(s.syncs, int)] = True
             ports = {**cfg_ports(s.cfg, "gate"), "bank_id": s.bank_id}
-            changes += [(at, p, v) for p, v in ports.items()]
+            # written with the segment's last beat but one: the gate acts on a register from
+            # the clock after it is written (`hdl.gate`), the model from the segment's first
+            # sample
+            changes += [(max(at - 1, 0), p, v) for p, v in ports.items()]
             at += s.n
         return codes, x, trig, sync, changes
 

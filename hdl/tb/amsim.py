@@ -15,7 +15,7 @@ from amaranth.hdl import Value
 from amaranth.sim import Simulator
 
 from .cosim import BenchResult
-from .streams import fields_of, pack, unpack
+from .streams import SETTLE_CLOCKS, fields_of, pack, unpack
 
 __all__ = ["port", "simulate"]
 
@@ -54,6 +54,10 @@ def simulate(component, *, sources: dict, sinks: dict, static: dict | None = Non
     async def bench(ctx):
         for name, value in (static or {}).items():
             ctx.set(port(component, name), value)
+        for s in srcs:  # the first beat's changes, then clocks to settle (SETTLE_CLOCKS)
+            for sig, value in s["changes"].pop(0, ()):
+                ctx.set(sig, value)
+        await ctx.tick().repeat(SETTLE_CLOCKS)
         index = {s["name"]: 0 for s in srcs}
         offering = {s["name"]: False for s in srcs}
         held = {k["name"]: None for k in snks}

@@ -29,6 +29,7 @@ from ..layouts import FlatField
 from .streams import (
     BENCH_IN_ENV,
     BENCH_OUT_ENV,
+    SETTLE_CLOCKS,
     Pattern,
     load_bundle,
     pack,
@@ -147,8 +148,13 @@ async def run_bundle(dut):
         sources.append(StreamSource(dut, s["name"], beats, Pattern(**s["pattern"]), changes))
     sinks = [StreamSink(dut, k["name"], Pattern(**k["pattern"])) for k in spec["sinks"]]
 
+    # A source's changes for its first beat are made before the reset, with the static values
+    # (streams.SETTLE_CLOCKS says why)
+    for s in sources:
+        for handle, value in s.changes.pop(0, ()):
+            handle.value = value
     dut.rst.value = 1
-    for _ in range(2):
+    for _ in range(SETTLE_CLOCKS):
         await RisingEdge(dut.clk)
     dut.rst.value = 0
 

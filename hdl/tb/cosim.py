@@ -225,7 +225,8 @@ class Source:
         Which clocks a beat is offered on.
     changes : list of (int, str, int)
         ``(beat, port, value)``: set input ``port`` to ``value`` from the clock on which beat
-        number ``beat`` is first offered (a register write between frames, say).
+        number ``beat`` is first offered (a register write between frames, say); those of beat
+        0 before the run, with the static values (``streams.SETTLE_CLOCKS``).
     """
 
     shape: object

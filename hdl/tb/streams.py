@@ -32,6 +32,11 @@ __all__ = [
     "unpack",
 ]
 
+#: Clocks both benches run before a source offers its first beat, with the static values and
+#: the changes for the first beat applied (the cocotb bench holds the reset through them): the
+#: registers a design makes of its ports (reset-less, loaded at every clock, e.g. the gate's)
+#: settle before the first beat, as a device's registers are written before it acquires.
+SETTLE_CLOCKS = 4
 #: Environment variables naming the bench's input and output bundles.
 BENCH_IN_ENV = "ALBCAP_BENCH_IN"
 BENCH_OUT_ENV = "ALBCAP_BENCH_OUT"
