@@ -75,8 +75,10 @@ def _synth(args) -> int:
                 f"--param {key}: the value must be an integer, not {value!r}") from None
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
+    if args.static != "pins" and args.context != "in":
+        raise SystemExit("--static applies in context only: give --context in")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
-                    args.placer, args.seed)
+                    args.placer, args.seed, args.static)
     if args.out is not None:
         from .synth import record_figures
 
@@ -126,6 +128,10 @@ def register(subparsers) -> None:
                      help="out: the component alone, out of context (its clock on fabric "
                           "routing); in: inside a shell of registers, in context, its clock "
                           "on a global network (for designs of tens of thousands of FFs)")
+    syn.add_argument("--static", choices=("pins", "registers"), default="pins",
+                     help="in context, where the register groups come from: pins (untimed, "
+                          "as out of context) or registers (timed, as in the device, where "
+                          "they are the link's registers)")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")

@@ -10,6 +10,9 @@ and the UART (:mod:`hdl.uart`); Link sees only their counters.
 
 from __future__ import annotations
 
+from functools import reduce
+from operator import and_, or_
+
 from amaranth.hdl import Cat, Const, Module, Mux, Signal
 from amaranth.lib import memory, stream, wiring
 from amaranth.lib.wiring import In, Out
@@ -45,7 +48,7 @@ POWER_ON_COEF = 1
 #: ``tx`` (receiver caught up with the line, idle transmitter, ``tx`` ready), for the commands
 #: answered at once. Bytes arriving on every clock add two (the receiver's sync and header
 #: checks, each a clock of its own, fall behind the line).
-ACK_LATENCY = 14
+ACK_LATENCY = 15
 
 # payload bytes a command is checked and remembered by (BANK_COMMIT's K, L, crc is the longest)
 _KEY_BYTES = 6
@@ -101,7 +104,7 @@ class Link(wiring.Component):
     Notes
     -----
     Latency, with the transmitter idle and ``tx`` ready: the first acknowledgement byte is on
-    ``tx`` ``ACK_LATENCY = 14`` clocks after the command's last byte was taken on ``rx`` (3 to
+    ``tx`` ``ACK_LATENCY = 15`` clocks after the command's last byte was taken on ``rx`` (3 to
     read the CRC byte, check it and deliver, 7 to fetch the payload head, 1 to decide, 2 to
     start the packet), two more when the bytes came on consecutive clocks; an acknowledgement
     of ``n`` payload bytes then takes ``12 + n`` clocks.
@@ -209,8 +212,11 @@ class Link(wiring.Component):
                 with m.If(fetch == _KEY_BYTES):
                     m.next = "CHECK"
             with m.State("CHECK"):
-                # the checks of `flags` are registered on this clock, so DECIDE sees them as
-                # flip-flops (they are adders and comparators; their sum did not fit a clock)
+                # the checks of `flags` are registered in two stages (CHECK, CHECK2), so
+                # DECIDE sees them as flip-flops: compares and a choice among the registers,
+                # which did not fit one clock
+                m.next = "CHECK2"
+            with m.State("CHECK2"):
                 m.next = "DECIDE"
             with m.State("DECIDE"):
                 m.d.sync += [last.eq(key), last_valid.eq(1),
@@ -292,16 +298,41 @@ class Link(wiring.Component):
         return Cat(*parts)
 
     def _checks(self, m, pkt, key, last, last_valid, regs, word, value, k_new, l_new):
-        """The tests a command's answer depends on, registered every clock (read in DECIDE)."""
+        """The tests a command's answer depends on, registered every clock (read in DECIDE).
+
+        Most are one stage of registers from the packet; the register read, the range test
+        and the retry test take two: first per register (is it the one addressed, is the value
+        in its range) or per part of the key, then the choice or the AND of those flags. In
+        the device the paths from the payload through a 29-way choice of registers were its
+        worst (15 LUTs); the payload is held from FETCH to DECIDE, so a stage costs a clock
+        of each command and nothing else. ``f["sel"]`` (one flag per register, the address
+        decoded) also enables WRITE_REG's write.
+        """
         f = {name: Signal(name=f"chk_{name}") for name in (
             "retry", "known", "bad_length", "bad_address", "in_range", "bw_bad_length",
             "bw_bad_address", "bad_kl")}
         f.update({c: Signal(name=f"is_{c.name.lower()}") for c in _COMMANDS})
         f["read"] = Signal(32, name="chk_read")
         n_words = (pkt.length - 2)[1:16]
+        sel = [Signal(name=f"chk_sel{i}") for i in range(len(REGISTERS))]
+        rng = [Signal(name=f"chk_rng{i}") for i in range(len(REGISTERS))]
+        m.d.sync += [sel[i].eq(word == r.address) for i, r in enumerate(REGISTERS)]
+        m.d.sync += [rng[i].eq((value >= r.lo) & (value <= r.hi))
+                     for i, r in enumerate(REGISTERS)]
         m.d.sync += [
-            f["retry"].eq(last_valid & (last == key) & (pkt.length <= _KEY_BYTES)),
-            f["known"].eq(0), f["bad_length"].eq(0), f["in_range"].eq(0), f["read"].eq(0),
+            f["read"].eq(reduce(or_, [Mux(sel[i], reg, 0) for i, reg in enumerate(regs)])),
+            f["in_range"].eq(reduce(or_, [sel[i] & rng[i] for i in range(len(regs))])),
+        ]
+        f["sel"] = sel
+        # the key compared in parts of 16 bits, then the parts' AND with the rest
+        parts = [Signal(name=f"chk_same{i}") for i in range(-(-len(key) // 16))]
+        m.d.sync += [parts[i].eq(last[16 * i:16 * i + 16] == key[16 * i:16 * i + 16])
+                     for i in range(len(parts))]
+        short = Signal(name="chk_short")
+        m.d.sync += short.eq(last_valid & (pkt.length <= _KEY_BYTES))
+        m.d.sync += [
+            f["retry"].eq(short & reduce(and_, parts)),
+            f["known"].eq(0), f["bad_length"].eq(0),
             f["bad_address"].eq(word >= len(REGISTERS)),
             f["bw_bad_length"].eq((pkt.length < 4) | pkt.length[0]
                                   | (pkt.length > 2 + 2 * BANK_WRITE_MAX)),
@@ -315,11 +346,6 @@ class Link(wiring.Component):
                     m.d.sync += f["known"].eq(1)
                     if c in _FIXED_LENGTH:
                         m.d.sync += f["bad_length"].eq(pkt.length != _FIXED_LENGTH[c])
-        with m.Switch(word):
-            for r, reg in zip(REGISTERS, regs, strict=True):
-                with m.Case(r.address):
-                    m.d.sync += [f["read"].eq(reg),
-                                 f["in_range"].eq((value >= r.lo) & (value <= r.hi))]
         return f
 
     def _execute(self, m, respond, f, regs, word, value, status, st):
@@ -338,10 +364,9 @@ class Link(wiring.Component):
             with m.Elif(~f["in_range"]):
                 respond(ErrorCode.BAD_VALUE)
             with m.Else():
-                with m.Switch(word):
-                    for r, reg in zip(REGISTERS, regs, strict=True):
-                        with m.Case(r.address):
-                            m.d.sync += reg.eq(value)
+                for on, reg in zip(f["sel"], regs, strict=True):
+                    with m.If(on):
+                        m.d.sync += reg.eq(value)
                 respond(ErrorCode.OK)
         with m.Elif(f[PacketType.BANK_WRITE]):
             with m.If(f["bw_bad_length"]):

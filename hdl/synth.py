@@ -76,8 +76,11 @@ class PortShell(Elaboratable):
     output into the pin ``dout`` through registers and a registered XOR tree: nothing is
     constant, nothing is left unused, and every path the shell adds runs from a register to
     a register. The static inputs (:meth:`is_static`: the register groups, ``templates``,
-    ``taps``, ``bank_id``) stay pins of their own: paths from a pin are not timed, as out of
-    context, since the designs treat them as quasi-static (a register write between frames).
+    ``taps``, ``bank_id``) stay pins of their own by default (``static="pins"``): paths from
+    a pin are not timed, as out of context. With ``static="registers"`` they come from a
+    second shift register, fed by the pin ``cfg_din``, and every path from them is timed, as
+    in the device (:class:`hdl.top.Top`), where they are the link's registers: nextpnr has no
+    multicycle constraint, so a design must make them short (``docs/fpga.md``).
     Every other port, a single control or status signal too, goes through the shell. The
     shell's clock domain has no reset (as out of context, where the reset port is never
     routed): the figures are the logic's, not a reset network's.
@@ -102,6 +105,8 @@ class PortShell(Elaboratable):
         from amaranth.lib.wiring import Flow
 
         if static not in self.STATIC_SOURCES:
+            # refused, so never meant to be elaborated: keep Amaranth from warning of it
+            self._MustUse__silence = core._MustUse__silence = True
             raise ValueError(f"static must be one of {self.STATIC_SOURCES}, not {static!r}")
         self.core = core
         self.static_source = static
@@ -277,6 +282,10 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         (``context``).
     placer : {"heap", "static"}
         nextpnr's placer (:data:`PLACERS`); recorded in the result.
+    static : {"pins", "registers"}
+        In context, where the register groups come from (:class:`PortShell`): ``pins``,
+        untimed, or ``registers``, timed as in the device. Recorded in the result (``static``)
+        when ``context`` is ``in``.
     seed : int
         nextpnr's random seed (1 for every recorded figure until the thirteenth session).
         Recorded in the result. The same netlist placed with other seeds spreads by some
@@ -298,6 +307,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         raise ValueError(f"placer must be one of {PLACERS}, not {placer!r}")
     if static not in PortShell.STATIC_SOURCES:
         raise ValueError(f"static must be one of {PortShell.STATIC_SOURCES}, not {static!r}")
+    if static != "pins" and context != "in":
+        raise ValueError(f"static={static!r} applies in context only (context='in')")
     if not (isinstance(seed, int) and not isinstance(seed, bool) and 1 <= seed < 2 ** 31):
         raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
     components = synth_components()
@@ -405,22 +416,27 @@ def worst_path(report: dict) -> dict | None:
 
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
-              seed: int = 1) -> dict:
+              seed: int = 1, static: str = "pins") -> dict:
     """:func:`synthesize` every component (and the pipeline, when it exists); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
     component named, so give them with one component at a time."""
     names = sorted(synth_components()) if not names else list(names)
     return {"device": DEVICE,
             "components": {n: synthesize(n, target_mhz, params=params, router=router,
-                                         context=context, placer=placer, seed=seed)
+                                         context=context, placer=placer, seed=seed,
+                                         static=static)
                            for n in names}}
 
 
-def figure_key(name: str, params: dict | None = None, context: str = "out") -> str:
+def figure_key(name: str, params: dict | None = None, context: str = "out",
+               static: str = "pins") -> str:
     """The key of one measured configuration: ``albcap_filter_detect[lanes=4,taps_max=32]``;
-    placed in context, ``context=in`` among the keywords, so both figures can be kept."""
+    placed in context, ``context=in`` among the keywords (and ``static=registers`` when the
+    register groups came from registers), so every such figure can be kept."""
     if context != "out":
         params = {**(params or {}), "context": context}
+    if static != "pins":
+        params = {**(params or {}), "static": static}
     if not params:
         return name
     return f"{name}[{','.join(f'{k}={v}' for k, v in sorted(params.items()))}]"
@@ -440,7 +456,8 @@ def record_figures(path, res: dict) -> dict:
         raise ValueError(f"{path} holds figures for {old.get('device')}, not {res['device']}")
     figures = dict(old.get("figures", {}))
     for name, r in res["components"].items():
-        key = figure_key(name, r.get("params"), r.get("context", "out"))
+        key = figure_key(name, r.get("params"), r.get("context", "out"),
+                         r.get("static", "pins"))
         figures[key] = {"component": name, **r}
     merged = {"format": "albcap-fpga-1", "device": res["device"],
               "figures": dict(sorted(figures.items()))}

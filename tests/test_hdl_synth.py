@@ -81,6 +81,44 @@ class TestSynth:
         head = text[text.index("module p("):].split(";")[0]
         assert "bank_busy" not in head and "frame_idle" not in head and "din" in head
 
+    def test_shell_static_registers(self):
+        """``static="registers"``: the register groups come from a chain of registers fed by
+        ``cfg_din`` (timed, as the link's registers in the device), not from pins."""
+        from amaranth.sim import Simulator
+
+        from hdl.stitch import Stitch
+        from hdl.synth import PortShell
+
+        core = Stitch()
+        shell = PortShell(core, static="registers")
+        assert shell.ports == [shell.domain.clk, shell.din, shell.dout, shell.cfg_din]
+        pins = PortShell(Stitch())
+        assert len(pins.ports) == 3 + len(pins.static)
+        pins._MustUse__silence = pins.core._MustUse__silence = True  # (not elaborated)
+        bits = sum(len(pin) for pin in shell.static)
+        rng = __import__("random").Random(5)
+        want = [rng.randrange(2) for _ in range(bits)]
+        sim = Simulator(shell)
+        sim.add_clock(1e-8)
+
+        async def bench(ctx):
+            for b in reversed(want):  # the first bit in travels furthest down the chain
+                ctx.set(shell.cfg_din, b)
+                await ctx.tick()
+            got = []
+            for _, port in shell._pinned:
+                v = ctx.get(port)
+                got += [(v >> i) & 1 for i in range(len(port))]
+            assert got == want
+
+        sim.add_testbench(bench)
+        sim.run()
+        with pytest.raises(ValueError, match=r"static must be one of \('pins', 'registers'\), "
+                                             r"not 'wires'"):
+            PortShell(Stitch(), static="wires")
+        with pytest.raises(ValueError, match=r"static='registers' applies in context only"):
+            synthesize("albcap_stitch", static="registers")
+
     def test_unknown_component(self):
         with pytest.raises(ValueError, match="unknown component 'albcap_fft'"):
             synthesize("albcap_fft")
