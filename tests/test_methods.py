@@ -711,3 +711,39 @@ class TestEstimateFeatures:
         with pytest.raises(ValueError, match=re.escape(
                 "features must be a dict of arrays, not list")):
             Estimate(depth_m=z, detected=z > 0, surface_s=z, bottom_s=z, features=[z])
+
+
+FLOAT_METHODS = ["peaks_float", "threshold"]
+
+
+@pytest.mark.parametrize("name", FLOAT_METHODS)
+def test_an_instance_estimates_on_several_threads_at_once(name, scene, setup, monkeypatch):
+    """One prepared instance serves every thread of the accuracy study's ``threads``
+    scheduler. Here a second batch is estimated *inside* the first one's detection (what a
+    second thread does between two of the first's steps), deterministically: both answers
+    must be the serial ones. They were not when the picks (``_last``) and the threshold's
+    features were instance attributes: the first batch read the second's picks
+    (``ValueError: operands could not be broadcast together with shapes (2,) (3,)``, seen in
+    the suite once in a loaded run)."""
+    m = prepared(name, setup)
+    a = make_shots(scene, 8.0, 3, seed=81)
+    b = make_shots(scene, 14.0, 2, seed=82)
+    want_a, want_b = run_quiet(m, a), run_quiet(m, b)
+    inner = {}
+    detect = type(m)._detect
+
+    def interleaved(self, fw, *args):
+        res = detect(self, fw, *args)
+        if not inner:
+            inner["b"] = None  # once, and not for the nested call itself
+            inner["b"] = run_quiet(self, b)
+        return res
+
+    monkeypatch.setattr(type(m), "_detect", interleaved)
+    got_a = run_quiet(m, a)
+    for got, want in ((got_a, want_a), (inner["b"], want_b)):
+        for field in ("depth_m", "detected", "surface_s", "bottom_s", "confident"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field))
+        if name == "threshold":
+            for key in want.features:
+                np.testing.assert_array_equal(got.features[key], want.features[key])

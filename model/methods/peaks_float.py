@@ -106,7 +106,6 @@ class PeaksFloat(Method):
         self._table = None
         self._sigma = None  # smoothing, samples
         self._pulse = None  # received pulse's standard deviation, samples
-        self._last = None  # the last detection (smoothed waveform, picks, dt)
         self._rate0 = None  # the survey water's column decay rate, 1/sample
         self._gains = None  # per smoothing of ``_scales``, the noise's deviation over the raw
 
@@ -185,7 +184,7 @@ class PeaksFloat(Method):
                                peak_halfwidth=max(1, round(sigma)),
                                prominence_window=round(4 * sigma))
 
-    def _detect(self, fw: FloatWave):
+    def _detect(self, fw: FloatWave, out: dict | None = None):
         """Picks at several smoothings, per shot the widest one that finds a bottom.
 
         Returns ``(y, r, sigma)``: per row the waveform at the smoothing used, the picks
@@ -196,6 +195,12 @@ class PeaksFloat(Method):
         water, where a wider one merges them (below about 2 m and 1.3 m). Rows that none of
         them reads at ``k_noise`` go through the three again with ``k_weak``; what that finds is
         marked ``weak`` (every other answer is exactly the one-threshold answer).
+
+        ``out`` (a dict, optional) receives the picks as ``out["picks"]``, for the caller of
+        :meth:`_times` that needs them: a call's results travel with the call, never in the
+        instance, so that one instance may estimate batches on several threads at once (the
+        accuracy study's ``threads`` scheduler; an instance attribute holding "the last
+        detection" let one thread read another's picks).
         """
         raw = fw.y
         n = raw.shape[0]
@@ -224,30 +229,35 @@ class PeaksFloat(Method):
                 r["scale"][idx] = j
                 y[idx] = ys[take]
                 used[idx] = sigma
-        self._last = (y, r, fw.dt_s)
+        if out is not None:
+            out["picks"] = r
         return y, r, used
 
-    def _times(self, fw: FloatWave):
-        """Surface and bottom times, s, and whether both were found, before any correction."""
-        _, r, _ = self._detect(fw)
+    def _times(self, fw: FloatWave, out: dict | None = None):
+        """Surface and bottom times, s, and whether both were found, before any correction;
+        ``out`` as :meth:`_detect`'s (the methods built on this one add their own keys)."""
+        _, r, _ = self._detect(fw, out)
         return r["surface_s"], r["bottom_s"], r["detected"]
 
     def estimate(self, shots: Shots) -> Estimate:
         """Depths of a batch of digitized shots (see the class docstring)."""
+        return self._estimate(shots, {})
+
+    def _estimate(self, shots: Shots, out: dict) -> Estimate:
+        """:meth:`estimate`, with ``out`` (see :meth:`_detect`) filled by :meth:`_times`."""
         if self._sigma is None:
             self.prepare(shots.setup)
         fw = float_wave(shots)
         if fw.y.shape[1] < 16:
             return not_detected(len(shots))
-        ts, tb, ok = self._times(fw)
+        ts, tb, ok = self._times(fw, out)
+        r = out["picks"]
         if self._rate0 is not None:
             # the depth table holds for the survey's water only: where the water column decays
             # at another rate (turbid water stretches the bottom return more), flag the shot
-            _, r, _ = self._last
             ratio = self._column_rate(fw, r["surface_s"], r["bottom_s"]) / self._rate0
             with np.errstate(invalid="ignore"):
                 ok = ok & ~(np.abs(ratio - 1.0) > self.column_tol)
-        r = self._last[1]
         # a bottom that does not stand out of the noise estimated from the raw lead-in too is
         # weak (class docstring): the smoothed lead-in alone can underrate the noise by half
         weak = r["weak"] | ~self._stands_out(fw, r)

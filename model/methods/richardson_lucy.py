@@ -85,7 +85,7 @@ class RichardsonLucy(PeaksFloat):
         self._ref = PeaksFloat()
         self._ref.prepare(setup)
 
-    def _times(self, fw: FloatWave):
+    def _times(self, fw: FloatWave, out: dict | None = None):
         h, floor = self._response(fw)
         r = self._pick(h, fw, max(0.5, 0.25 * self._pulse))
         # RL turns the onset of the water-column return (about 20 ns under the surface) into a
@@ -93,7 +93,7 @@ class RichardsonLucy(PeaksFloat):
         # bottom is the response's largest sample near the bottom found on the smoothed
         # waveform, from 4 pulse sigmas before it (the smoothed peak of a stretched return lags
         # the response's) to 2 after.
-        _, ref, _ = self._detect(fw)
+        _, ref, _ = self._detect(fw, out)
         ok = r["surface_s"] >= 0
         ok &= ref["detected"]
         n, N = h.shape

@@ -87,20 +87,12 @@ class Threshold(PeaksFloat):
     label = "threshold timing 0.5 Vm"
     error_bound_m = 1.0
 
-    def __init__(self):
-        super().__init__()
-        self._features = None  # the last ``_times``'s features (``FEATURES``), per shot
-
     def estimate(self, shots: Shots) -> Estimate:
         """Depths of a batch of digitized shots, with the returns' heights and widths as
         ``Estimate.features`` (see the class docstring)."""
-        if self._sigma is None:
-            # here, not in the base class: the depth table's run of ``_times`` leaves its own
-            # features behind, which the reset below must come after
-            self.prepare(shots.setup)
-        self._features = None
-        est = super().estimate(shots)
-        feats = self._features
+        out = {}  # `_times` leaves the features here (not in the instance: threads share it)
+        est = self._estimate(shots, out)
+        feats = out.get("features")
         if feats is None:  # a gate too short to read: no return was looked for
             feats = {key: np.zeros(len(shots)) for key in FEATURES}
         return dataclasses.replace(est, features=feats)
@@ -137,10 +129,10 @@ class Threshold(PeaksFloat):
         measured = np.isfinite(width)
         return np.where(measured, h, 0.0), np.where(measured, w, 0.0)
 
-    def _times(self, fw: FloatWave):
+    def _times(self, fw: FloatWave, out: dict | None = None):
         # returns found as by ``peaks_float`` (so the float methods agree on what they detect),
         # timed on seed 003's median-filtered waveform
-        _, r, used = self._detect(fw)
+        _, r, used = self._detect(fw, out)
         med = median_filter(fw.y, size=(1, 5), mode="nearest")
         y = np.empty_like(med)
         for s in np.unique(used):  # each shot at the smoothing it was found with
@@ -152,7 +144,8 @@ class Threshold(PeaksFloat):
         look = max(4, round(8 * self._pulse))
         ts, tb = np.full(n, np.nan), np.full(n, np.nan)
         feats = {key: np.zeros(n) for key in FEATURES}
-        self._features = feats
+        if out is not None:
+            out["features"] = feats
         # the surface is measured wherever it was found (a detection needs it, so this covers
         # every detected row), the bottom where it was found, i.e. where the shot is detected
         found = np.flatnonzero(np.isfinite(r["surface_s"]))

@@ -62,8 +62,8 @@ class WeibullEEMD(PeaksFloat):
     #: the per-survey depth table runs the method once per depth: 1 m steps keep it short
     table_step_m = 1.0
 
-    def _times(self, fw: FloatWave):
-        _, r, _ = self._detect(fw)
+    def _times(self, fw: FloatWave, out: dict | None = None):
+        _, r, _ = self._detect(fw, out)
         n = fw.y.shape[0]
         ts, tb = np.full(n, np.nan), np.full(n, np.nan)
         ok = np.zeros(n, bool)
