@@ -177,5 +177,12 @@ class Method:
         """Per-survey set-up (not timed per waveform). Default: nothing."""
 
     def estimate(self, shots: Shots) -> Estimate:
-        """Depths of a batch of shots. Subclasses implement it."""
+        """Depths of a batch of shots. Subclasses implement it.
+
+        An instance is prepared once and then shared: the accuracy study's ``threads``
+        scheduler runs one instance's ``estimate`` on several batches at once. So an
+        implementation keeps no per-call state in the instance (only what ``prepare`` sets);
+        what one step of a call hands to a later one travels with the call
+        (``tests/test_methods.py::test_an_instance_estimates_on_several_threads_at_once``).
+        """
         raise NotImplementedError(f"{type(self).__name__}.estimate")
