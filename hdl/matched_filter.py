@@ -600,34 +600,24 @@ class MatchedFilter(wiring.Component):
 
         # K - 1 and "K >= 2" registered from the bank's shape (written between frames), so
         # that the template decision starts at registers, not at a subtraction from the port
-        K = self.templates
-        two_plus = _reg(m, K >= 2, 1, "two_plus", True)
-        # `k_top` = (k >= K - 1), kept beside k: the compare of k with K - 1 then feeds only
-        # the flag's next value, not the template decision (k_max -> compare -> k was the
-        # pipeline's worst path, 7.15 ns, with the registers timed). Its next value for each
-        # choice of k_sel: 0 -> K <= 1; the first bin (two_plus) -> K <= 2; k + 1 -> k >= K - 2
-        # (k itself: unchanged).
-        top_first = _reg(m, K <= 1, 1, "top_first", True)
-        top_match = _reg(m, K <= 2, 1, "top_match", True)
-        k_max_m1 = _reg(m, K - 2, (K - 2).shape(), "k_max_m1", True)
-        k_top = Signal()
-        k_sel, top_sel = Signal(_K_SHAPE), Signal()
+        k_max = _reg(m, self.templates - 1, (self.templates - 1).shape(), "k_max", True)
+        two_plus = _reg(m, self.templates >= 2, 1, "two_plus", True)
+        k_sel = Signal(_K_SHAPE)
         with m.If(d.first):
-            m.d.comb += [k_sel.eq(0), top_sel.eq(top_first)]
+            m.d.comb += k_sel.eq(0)
         with m.Elif(match):
-            m.d.comb += [k_sel.eq(two_plus), top_sel.eq(top_match)]
+            m.d.comb += k_sel.eq(two_plus)
         with m.Elif(active & bin_end):
-            m.d.comb += [k_sel.eq(Mux(k_top, k, k + 1)), top_sel.eq(k_top | (k >= k_max_m1))]
+            m.d.comb += k_sel.eq(Mux(k >= k_max, k, k + 1))
         with m.Else():
-            m.d.comb += [k_sel.eq(k), top_sel.eq(k_top)]
+            m.d.comb += k_sel.eq(k)
 
         # the next clock's state, for the compares made ahead
         cnt_nx_is1, cnt_nx_inc = Signal(), Signal()
         s_known_nx = Signal()
         m.d.comb += s_known_nx.eq(s_pend)
         with m.If(accept):
-            m.d.sync += [n.eq(Mux(d.first, 1, n1)), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel),
-                         k_top.eq(top_sel)]
+            m.d.sync += [n.eq(Mux(d.first, 1, n1)), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel)]
             with m.If(d.first):
                 m.d.comb += s_known_nx.eq(0)
                 m.d.sync += [tag.eq(tag + 1), s_pend.eq(0)]
