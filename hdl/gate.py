@@ -101,6 +101,9 @@ class Gate(wiring.Component):
     empty and ``o.ready`` high (the sample register, the memory write, and the two read
     registers of the block RAM); one sample per clock sustained.
 
+    The registers (``cfg``) and ``bank_id`` act from the clock after they are written: the
+    gate reads them, and what it makes of them, from registers of its own, so that no path in
+    the device (where they are the link's registers) runs from them through its logic.
     ``gate_len``, ``frame_type`` and ``bank_id`` are latched when a trigger is accepted, so a
     frame's header always describes that frame; ``gate_delay`` likewise; ``fine_div`` is read
     on a line sync and on the sample after each tick (a change between line syncs takes effect
