@@ -139,7 +139,9 @@ class TestSynth:
     def test_param_errors(self, capsys):
         for args, msg in ((["--param", "lanes"], "--param wants NAME=VALUE"),
                           (["--param", "lanes=four"], "the value must be an integer, not 'four'"),
-                          (["--param", "lanes=4"], "--param needs exactly one --component")):
+                          (["--param", "lanes=4"], "--param needs exactly one --component"),
+                          (["--static", "registers"],
+                           "--static applies in context only: give --context in")):
             with pytest.raises(SystemExit, match=msg):
                 main(["hdl", "synth", *args])
 
