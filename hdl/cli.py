@@ -128,7 +128,9 @@ def register(subparsers) -> None:
                      help="out: the component alone, out of context (its clock on fabric "
                           "routing); in: inside a shell of registers, in context, its clock "
                           "on a global network (for designs of tens of thousands of FFs)")
-    syn.add_argument("--static", choices=("pins", "registers"), default="pins",
+    from .synth import PortShell
+
+    syn.add_argument("--static", choices=PortShell.STATIC_SOURCES, default="pins",
                      help="in context, where the register groups come from: pins (untimed, "
                           "as out of context) or registers (timed, as in the device, where "
                           "they are the link's registers)")

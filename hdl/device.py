@@ -105,9 +105,10 @@ class Link(wiring.Component):
     -----
     Latency, with the transmitter idle and ``tx`` ready: the first acknowledgement byte is on
     ``tx`` ``ACK_LATENCY = 15`` clocks after the command's last byte was taken on ``rx`` (3 to
-    read the CRC byte, check it and deliver, 7 to fetch the payload head, 1 to decide, 2 to
-    start the packet), two more when the bytes came on consecutive clocks; an acknowledgement
-    of ``n`` payload bytes then takes ``12 + n`` clocks.
+    read the CRC byte, check it and deliver, 7 to fetch the payload head, 2 to check it
+    (``CHECK``, ``CHECK2``), 1 to decide, 2 to start the packet), two more when the bytes
+    came on consecutive clocks; an acknowledgement of ``n`` payload bytes then takes ``12 +
+    n`` clocks.
     ``BANK_WRITE`` of ``n`` words adds ``2 n + 1`` clocks (a payload byte per clock),
     ``BANK_CRC`` ``BANK_WORDS + 3`` (a shadow word per clock through the CRC), ``BANK_COMMIT``
     ``BANK_WORDS + 4 + 2 K L`` once ``frame_idle`` is high (the copy writes a coefficient every

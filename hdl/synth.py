@@ -142,6 +142,18 @@ class PortShell(Elaboratable):
             return [self.domain.clk, self.din, self.dout, *self.static]
         return [self.domain.clk, self.din, self.dout, self.cfg_din]
 
+    @staticmethod
+    def _shift_in(m, pin, ports, name):
+        """Drive ``ports``, each a slice, from one shift register ``name`` fed by ``pin``."""
+        from amaranth.hdl import Cat
+
+        chain = Signal(sum(len(v) for v in ports), name=name)
+        m.d.sync += chain.eq(Cat(pin, chain[:-1]))
+        at = 0
+        for v in ports:
+            m.d.comb += v.eq(chain[at:at + len(v)])
+            at += len(v)
+
     def is_static(self, name: str) -> bool:
         """Whether the core's port ``name`` is a static input (an input left on a pin)."""
         from amaranth.lib.wiring import Flow
@@ -161,18 +173,8 @@ class PortShell(Elaboratable):
         if self.static_source == "pins":  # static: straight from pins, untimed
             m.d.comb += [port.eq(pin) for pin, port in self._pinned]
         elif self._pinned:  # static: from a register chain of their own, timed
-            cfg = Signal(sum(len(v) for _, v in self._pinned), name="shell_cfg")
-            m.d.sync += cfg.eq(Cat(self.cfg_din, cfg[:-1]))
-            at = 0
-            for _, v in self._pinned:
-                m.d.comb += v.eq(cfg[at:at + len(v)])
-                at += len(v)
-        chain = Signal(sum(len(v) for v in ins), name="shell_in")
-        m.d.sync += chain.eq(Cat(self.din, chain[:-1]))
-        at = 0
-        for v in ins:
-            m.d.comb += v.eq(chain[at:at + len(v)])
-            at += len(v)
+            self._shift_in(m, self.cfg_din, [v for _, v in self._pinned], "shell_cfg")
+        self._shift_in(m, self.din, ins, "shell_in")
         level = Signal(sum(len(v) for v in outs), name="shell_out0")
         m.d.sync += level.eq(Cat(*outs))
         depth = 0
