@@ -29,7 +29,7 @@ from amaranth.lib import data, memory
 from model.matched_filter import COEF_WIDTH, K_MAX
 from model.registers import by_name
 
-from ._primitives import _le, _output_buffer
+from ._primitives import _le, _output_buffer, _reg
 from .layouts import STITCHED
 from .matched_filter import (
     _J_BITS,
@@ -141,7 +141,12 @@ def elaborate(mf, platform) -> Module:
         m.d.sync += start.eq(mf.surface.payload.n + cfg.bin_offset)
         m.d.sync += [x.eq(mf.surface.payload.n + bo) for x, bo in zip(starts[1:], bos, strict=True)]
 
-    k_max = mf.templates - 1
+    # K - 1 and "K >= 2" registered from the bank's shape (the one-lane design's): the
+    # template decision starts at registers, not at a subtraction from the port. `k_ev` is
+    # worked out again at every clock, so it holds the new bank's values from the clock after
+    # they are, well before the frame's first switch (a surface taken, then arming)
+    k_max = _reg(m, mf.templates - 1, (mf.templates - 1).shape(), "k_max", True)
+    two_plus = _reg(m, mf.templates >= 2, 1, "two_plus", True)
     k_sel = [Signal(_K_SHAPE, name=f"k_sel{p}") for p in range(P)]
     m.d.comb += [k_sel[p].eq(Mux(d.first, 0, Mux(after[p], k_ev, k))) for p in range(P)]
 
@@ -202,7 +207,7 @@ def elaborate(mf, platform) -> Module:
     # from registers and the port's `first`; `accept` picks (from `accept` through the choice
     # of k_nx into the add and compare was the 3 x 3 interleaved build's worst path, 7.9 ns)
     def from_switch(act, kk):
-        return Mux(act, Mux(kk >= k_max, kk, kk + 1), Mux(k_max >= 1, 1, 0))
+        return Mux(act, Mux(kk >= k_max, kk, kk + 1), two_plus)
     # past the switch after this clock: an accepted first beat starts a frame; an accepted
     # beat of an armed frame (not arming now) that holds the switch passes it
     active_acc = Mux(d.first, 0, Mux(~(fresh & ~armed) & armed & hit, 1, active))
@@ -214,24 +219,39 @@ def elaborate(mf, platform) -> Module:
     ]
     m.d.sync += [after[p].eq(hit_nx & (rem_lo_nx <= p)) for p in range(P)]
 
-    # ---- stage 1: the window. w[i] takes the history w[i + P] below L - 1 (0 at a frame's
-    # first beat) and lane i - (L - 1) of the beat from L - 1 on; the selects are decoded from
-    # L once and shared. Positions past L + P - 2 are never read unmasked ----
+    # ---- stage 1: the beat, its markers and where L stands, in registers; the window is
+    # placed from them at stage 2. w[i] takes the history w[i + P] below L - 1 (0 at a frame's
+    # first beat) and lane i - (L - 1) of the beat from L - 1 on. Positions past L + P - 2 are
+    # never read unmasked. `taps` is read at acceptance, as before, but into flags of its own
+    # (`at{v}`: L - 1 == v; `cut{i}`: L <= i + 1, no history at w[i]; `mask`: L > j), so that
+    # the window's choice starts at registers: made from the port, the compares of `taps` ran
+    # on into the window's mux, seven cells (a path of the device, whose `taps` is a register
+    # of the link; Yosys's netlist of the 10 x 12 join, estimated at 10 ns). The stage-2
+    # operands read the window as it is placed (`wn`), so the latency is unchanged ----
     L = mf.taps
     n_w = T + P - 1
-    w = [Signal(STITCHED, name=f"w{i}") for i in range(n_w)]
-    at = [Signal(name=f"at{v}") for v in range(T)]  # at[v]: L - 1 == v
-    m.d.comb += [at[v].eq(L == v + 1) for v in range(T)]
-    with m.If(accept_dl):
-        for i in range(n_w):
-            hist = Mux(d.first | (L <= i + 1), 0, w[i + P]) if i < T - 1 else 0
-            placed = [Mux(at[i - q], xs[q], 0) for q in range(P) if 0 <= i - q < T]
-            v = hist
-            for x in placed:
-                v = v | x
-            m.d.sync += w[i].eq(v)
+    x1 = [Signal(STITCHED, name=f"x1_{q}") for q in range(P)]
+    first1, shift1 = Signal(), Signal()
+    at = [Signal(name=f"at{v}") for v in range(T)]
+    cut = [Signal(name=f"cut{i}") for i in range(T - 1)]
     mask = Signal(T)  # tap j in use (j < L), from the L that placed the window
-    m.d.sync += [mask[j].eq(L > j) for j in range(T)]
+    m.d.sync += [x1[q].eq(xs[q]) for q in range(P)]
+    m.d.sync += [first1.eq(d.first), shift1.eq(accept_dl)]
+    # each flag the sign of one subtraction (`_le`), which synthesis keeps apart: as compares
+    # it shared them in a chain of LUTs, five to seven deep
+    m.d.sync += [at[v].eq(L == v + 1) for v in range(T)]
+    m.d.sync += [cut[i].eq(_le(L, i + 1)) for i in range(T - 1)]
+    m.d.sync += [mask[j].eq(~_le(L, j)) for j in range(T)]
+    w = [Signal(STITCHED, name=f"w{i}") for i in range(n_w)]
+    wn = [Signal(STITCHED, name=f"wn{i}") for i in range(n_w)]  # w with the stage-1 beat
+    for i in range(n_w):
+        v = Mux(first1 | cut[i], 0, w[i + P]) if i < T - 1 else 0
+        for q in range(P):
+            if 0 <= i - q < T:
+                v = v | Mux(at[i - q], x1[q], 0)
+        m.d.comb += wn[i].eq(v)
+    with m.If(shift1):
+        m.d.sync += [w[i].eq(wn[i]) for i in range(n_w)]
 
     # ---- stages 2 to 4: per lane and tap, a LUT-RAM coefficient memory read with the lane's
     # template into a RegisteredMultiplier. The lane's template register is copied per group
@@ -263,7 +283,7 @@ def elaborate(mf, platform) -> Module:
             # different lanes, spread over the device's DSP rows)
             a_pre = Signal(STITCHED, name=f"a{p}_{j}")
             b_pre = Signal(signed(COEF_WIDTH), name=f"b{p}_{j}")
-            m.d.sync += [a_pre.eq(Mux(mask[j], w[p + j], 0)), b_pre.eq(rp.data)]
+            m.d.sync += [a_pre.eq(Mux(mask[j], wn[p + j], 0)), b_pre.eq(rp.data)]
             m.d.comb += [mul.a.eq(a_pre), mul.b.eq(b_pre)]
             prods.append(mul.p)
         levels = _tree(m, prods, f"l{p}")
