@@ -598,19 +598,40 @@ class MatchedFilter(wiring.Component):
         with m.If(self.surface.valid & (self.surface.payload.tag == tag) & ~(accept & d.first)):
             m.d.sync += s_pend.eq(1)
 
-        # K - 1 and "K >= 2" registered from the bank's shape (written between frames), so
-        # that the template decision starts at registers, not at a subtraction from the port
-        k_max = _reg(m, self.templates - 1, (self.templates - 1).shape(), "k_max", True)
-        two_plus = _reg(m, self.templates >= 2, 1, "two_plus", True)
+        # The template decision needs no compare and no add. Beside `k` are kept the template
+        # that follows it at a bin end, `k_up` = min(k + 1, K - 1), and whether that is the
+        # last one, `up_top` (k_up = K - 1); for every case their next values are made from
+        # registers, and an accepted sample only chooses among registers. (Mux(k >= K - 1, k,
+        # k + 1) made from `k` was two carry chains in series, the compare's and the add's,
+        # and the pipeline's worst path: the register K - 1 -> `k`, 7.15 ns, 9 cells; a flag
+        # "k >= K - 1" beside `k`, made from the chosen template, was as deep: run 49.) The
+        # values for a frame's start and for the switch sample are made from the bank's shape
+        # K (written between frames) a clock after it: min(1, K - 1) is `two_plus` ("K >= 2"),
+        # min(2, K - 1) is `up_tp`.
+        ks = self.templates
+        two_plus = _reg(m, ks >= 2, 1, "two_plus", True)
+        up_tp = _reg(m, Mux(ks >= 3, 2, ks >= 2), _K_SHAPE, "up_tp", True)
+        tp_top = _reg(m, ks <= 2, 1, "tp_top", True)  # min(1, K - 1) = K - 1
+        uptp_top = _reg(m, ks <= 3, 1, "uptp_top", True)  # min(2, K - 1) = K - 1
+        k_m2 = _reg(m, ks - 2, _K_SHAPE, "k_m2", True)  # k_up + 1 = K - 1 (read for K >= 4)
+        k_up, up_top = Signal(_K_SHAPE), Signal()
+        switch = active & bin_end
         k_sel = Signal(_K_SHAPE)
         with m.If(d.first):
             m.d.comb += k_sel.eq(0)
         with m.Elif(match):
             m.d.comb += k_sel.eq(two_plus)
-        with m.Elif(active & bin_end):
-            m.d.comb += k_sel.eq(Mux(k >= k_max, k, k + 1))
+        with m.Elif(switch):
+            m.d.comb += k_sel.eq(k_up)
         with m.Else():
             m.d.comb += k_sel.eq(k)
+        with m.If(accept):
+            with m.If(d.first):
+                m.d.sync += [k_up.eq(two_plus), up_top.eq(tp_top)]
+            with m.Elif(match):
+                m.d.sync += [k_up.eq(up_tp), up_top.eq(uptp_top)]
+            with m.Elif(switch & ~up_top):
+                m.d.sync += [k_up.eq(k_up + 1), up_top.eq(k_up == k_m2)]
 
         # the next clock's state, for the compares made ahead
         cnt_nx_is1, cnt_nx_inc = Signal(), Signal()

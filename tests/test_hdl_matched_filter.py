@@ -159,6 +159,8 @@ CASES = {
                                         bin_len=65535),
     "random_K5_L2_binoffset25": lambda: random_case(5, 2, seed=3, out_shift=12,
                                                     bin_offset=25, bin_len=2),
+    # K = 2 with a one-sample bin: the last template at the switch sample's bin end
+    "random_K2_L5_binlen1": lambda: random_case(2, 5, seed=4, out_shift=16, bin_len=1),
     "rails_K1_L64_shift0": rails_case,
     "K16_L1_shift31": shift31_case,
     "lidar_K8_L32": lidar_case,
