@@ -237,8 +237,8 @@ def elaborate(mf, platform) -> Module:
     mask = Signal(T)  # tap j in use (j < L), from the L that placed the window
     m.d.sync += [x1[q].eq(xs[q]) for q in range(P)]
     m.d.sync += [first1.eq(d.first), shift1.eq(accept_dl)]
-    # each flag the sign of one subtraction (`_le`), which synthesis keeps apart: as compares
-    # it shared them in a chain of LUTs, five to seven deep
+    # `cut` and `mask` each the sign of one subtraction (`_le`), which synthesis keeps apart:
+    # as compares it shared them in a chain of LUTs, five to seven deep
     m.d.sync += [at[v].eq(L == v + 1) for v in range(T)]
     m.d.sync += [cut[i].eq(_le(L, i + 1)) for i in range(T - 1)]
     m.d.sync += [mask[j].eq(~_le(L, j)) for j in range(T)]
