@@ -11,19 +11,29 @@ writer. A delivered packet's payload stays in the ring until the command executo
 
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Module, Signal
-from amaranth.lib import data, memory, stream, wiring
+from amaranth.hdl import Cat, Module, Mux, ResetInserter, Signal
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFOBuffered
 from amaranth.lib.wiring import In, Out
 
 from model.link import BODY_CRC, CRC_BYTES, HEADER_CRC, LINK_SYNC_BYTES, MAX_PAYLOAD, PACKET_HEADER
 
-__all__ = ["PACKET_INFO", "LinkReceiver", "check_buffer_bytes", "max_payload"]
+from ._bram import BlockRAM
+
+__all__ = ["PACKET_INFO", "RD_LATENCY", "LinkReceiver", "check_buffer_bytes", "max_payload"]
 
 #: What the receiver tells the executor about a packet that passed both CRCs.
 PACKET_INFO = data.StructLayout({"type": 8, "seq": 8, "length": 16})
 
 # bytes of a candidate kept from its third byte (the replay point) to its last
 _AFTER_SYNC = PACKET_HEADER.size - len(LINK_SYNC_BYTES)
+#: Clocks from ``rd_offset`` to its byte on ``rd_data``: the offset's address register, then the
+#: block RAM's two (:class:`hdl._bram.BlockRAM`).
+RD_LATENCY = 3
+# Bytes the reader may fetch ahead of the parser: the round trip from a read issued to its
+# byte taken and the credit back is 5 clocks (two in the block, one into the queue, one to its
+# output register, one to take it), so 8 keeps a byte a clock with room for the parser's stops.
+_QUEUE = 8
 
 
 def check_buffer_bytes(buffer_bytes: int) -> int:
@@ -97,32 +107,69 @@ class LinkReceiver(wiring.Component):
         m = Module()
         size = self.buffer_bytes
         aw = (size - 1).bit_length()
-        ring = m.submodules.ring = memory.Memory(shape=8, depth=size, init=[])
-        wr = ring.write_port()
-        rd = ring.read_port(transparent_for=(wr,))
+        # the ring is read through the block's output register (two clocks): read straight from
+        # the array, an ECP5 block RAM's 5.8 ns from the clock to its data left the parser's
+        # compares, and the executor's reads, a clock of well under 5 ns (the device's worst
+        # path at 87.8 MHz was the executor's state -> the read address)
+        ring = m.submodules.ring = BlockRAM(8, size)
         m.submodules.hcrc = hcrc = HEADER_CRC().create()
         m.submodules.bcrc = bcrc = BODY_CRC().create()
 
         # pointers one bit wider than the ring tell full from empty
         wp = Signal(aw + 1)  # next byte written
-        rp = Signal(aw + 1)  # next byte parsed; rd.data is ring[rp] (rd.addr = next rp)
+        fp = Signal(aw + 1)  # next byte the reader fetches into the queue
+        rp = Signal(aw + 1)  # next byte parsed: the queue's head when it has one
         base = Signal(aw + 1)  # oldest byte still needed: rp, or a candidate's third byte
-        rp_next = Signal(aw + 1)
         m.d.comb += [
             self.i.ready.eq((wp - base)[:aw + 1] != size),
-            wr.addr.eq(wp[:aw]),
-            wr.data.eq(self.i.payload),
-            wr.en.eq(self.i.valid & self.i.ready),
-            rp_next.eq(rp),
-            rd.addr.eq(rp_next[:aw]),
+            ring.w_addr.eq(wp[:aw]),
+            ring.w_data.eq(self.i.payload),
+            ring.w_en.eq(self.i.valid & self.i.ready),
+            ring.r_en.eq(1),
+            ring.r_oce.eq(1),
         ]
-        with m.If(wr.en):
+        with m.If(ring.w_en):
             m.d.sync += wp.eq(wp + 1)
-        m.d.sync += rp.eq(rp_next)
 
-        avail = Signal()
-        byte = rd.data
-        m.d.comb += avail.eq(rp != wp)
+        # The reader: ring bytes from fp into a queue the parser takes from, ahead of the
+        # parser by at most _QUEUE bytes (credits), so that a byte is read once, in order,
+        # without the parser's decisions on the read address. A flush (a replay, or a packet
+        # delivered, when the executor takes the read port) drops what is queued or on its way.
+        flush = Signal()
+        queue = SyncFIFOBuffered(width=8, depth=_QUEUE)
+        m.submodules.queue = ResetInserter(flush)(queue)
+        credits = Signal(range(_QUEUE + 1), init=_QUEUE)
+        issue = Signal()
+        on_way = Signal(2)  # reads issued one and two clocks ago (the block's two stages)
+        delivering = Signal()
+        take = Signal()  # the parser takes the queue's head
+        m.d.comb += [
+            issue.eq((fp != wp) & (credits != 0) & ~delivering & ~flush),
+            queue.w_data.eq(ring.r_data),
+            queue.w_en.eq(on_way[1]),
+            queue.r_en.eq(take),
+        ]
+        m.d.sync += [on_way.eq(Cat(issue, on_way[0])),
+                     credits.eq(credits - issue + (take & queue.r_rdy))]
+        with m.If(issue):
+            m.d.sync += fp.eq(fp + 1)
+        with m.If(flush):
+            m.d.sync += [on_way.eq(0), credits.eq(_QUEUE)]
+        with m.If(take):
+            m.d.sync += rp.eq(rp + 1)
+
+        # In DELIVER the executor has the read port, at an address registered from its
+        # offset: no adder or choice of the executor's between a flip-flop and the block.
+        pay_base = Signal(aw + 1)  # a delivered packet's first payload byte
+        pay_addr = Signal(aw)
+        m.d.sync += pay_addr.eq((pay_base + self.rd_offset)[:aw])
+        m.d.comb += [
+            ring.r_addr.eq(Mux(delivering, pay_addr, fp[:aw])),
+            self.rd_data.eq(ring.r_data),
+        ]
+
+        avail = queue.r_rdy
+        byte = queue.r_data
         hdr = [Signal(8, name=f"hdr{n}") for n in range(_AFTER_SYNC)]  # type, seq, length, hcrc
         length = Cat(hdr[2], hdr[3])
         count = Signal(16)  # bytes of the header, payload or CRC field taken so far
@@ -134,35 +181,34 @@ class LinkReceiver(wiring.Component):
             self.pkt.payload.type.eq(hdr[0]),
             self.pkt.payload.seq.eq(hdr[1]),
             self.pkt.payload.length.eq(length),
-            self.rd_data.eq(rd.data),
         ]
 
-        # the CRCs take the bytes one clock late, from registers: the block RAM's output then
-        # drives flip-flops only, not the CRC's XOR network (both checks come later anyway)
+        # the CRCs take the bytes one clock late, from registers, off the parser's decisions
         h_valid, h_start, b_valid, b_start = Signal(), Signal(), Signal(), Signal()
         m.d.sync += [hcrc.data.eq(byte), bcrc.data.eq(byte),
                      hcrc.valid.eq(h_valid), hcrc.start.eq(h_start),
                      bcrc.valid.eq(b_valid), bcrc.start.eq(b_start)]
 
         def reject():
-            m.d.sync += [self.bad.eq(self.bad + 1), after_c5.eq(0)]
-            m.d.comb += rp_next.eq(base)  # replay from the candidate's third byte
+            m.d.sync += [self.bad.eq(self.bad + 1), after_c5.eq(0),
+                         rp.eq(base), fp.eq(base)]  # replay from the candidate's third byte
+            m.d.comb += flush.eq(1)
             m.next = "SEARCH"
 
         with m.FSM():
             with m.State("SEARCH"):
-                # a sync word found is acted on a clock later (`found`, registered): the ring's
-                # slow output then drives flip-flops only, never the parser's next state
+                # a sync word found is acted on a clock later (`found`, registered), so the
+                # compares of the byte never reach the parser's next state
                 with m.If(found):
                     m.d.sync += found.eq(0)
                     m.next = "HEADER"
                 with m.Elif(avail):
-                    m.d.comb += rp_next.eq(rp + 1)
+                    m.d.comb += take.eq(1)
                     m.d.sync += [base.eq(rp + 1), after_c5.eq(byte == sync0), count.eq(0),
                                  found.eq(after_c5 & (byte == sync1))]
             with m.State("HEADER"):
                 with m.If(avail):
-                    m.d.comb += [rp_next.eq(rp + 1),
+                    m.d.comb += [take.eq(1),
                                  h_start.eq(count == 0), h_valid.eq(count < 4),
                                  # restarted on every header byte, run on the payload only:
                                  # the empty payload's CRC when the length is 0
@@ -176,7 +222,7 @@ class LinkReceiver(wiring.Component):
                         m.d.sync += count.eq(0)
                         m.next = "HEADER_CHECK"
             with m.State("HEADER_CHECK"):
-                # a clock of its own: the ring's output never reaches the ring's address
+                # a clock of its own: the header's CRC compare decides a replay's flush
                 with m.If((Cat(hdr[4], hdr[5]) != hcrc.crc) | (length > self.max_payload)):
                     reject()
                 with m.Elif(length == 0):
@@ -185,30 +231,30 @@ class LinkReceiver(wiring.Component):
                     m.next = "PAYLOAD"
             with m.State("PAYLOAD"):
                 with m.If(avail):
-                    m.d.comb += [rp_next.eq(rp + 1), b_valid.eq(1)]
+                    m.d.comb += [take.eq(1), b_valid.eq(1)]
                     m.d.sync += count.eq(count + 1)
                     with m.If(count + 1 == length):
                         m.d.sync += count.eq(0)
                         m.next = "CRC"
             with m.State("CRC"):
                 with m.If(avail):
-                    m.d.comb += rp_next.eq(rp + 1)
+                    m.d.comb += take.eq(1)
                     m.d.sync += [count.eq(count + 1), rx_crc.eq(Cat(rx_crc[8:], byte))]
                     with m.If(count == CRC_BYTES - 1):
                         m.next = "CRC_CHECK"
             with m.State("CRC_CHECK"):
                 with m.If(rx_crc == bcrc.crc):
+                    # the executor takes the read port: what the reader fetched past the
+                    # packet is dropped, and fetched again after it
+                    m.d.comb += flush.eq(1)
+                    m.d.sync += [fp.eq(rp), delivering.eq(1), pay_base.eq(base + _AFTER_SYNC)]
                     m.next = "DELIVER"
                 with m.Else():
                     reject()
             with m.State("DELIVER"):
-                m.d.comb += [
-                    self.pkt.valid.eq(1),
-                    rd.addr.eq((base + _AFTER_SYNC + self.rd_offset)[:aw]),
-                ]
+                m.d.comb += self.pkt.valid.eq(1)
                 with m.If(self.pkt.ready):
-                    # the ring frees the packet; rd.addr goes back to the parser's byte
-                    m.d.comb += rd.addr.eq(rp[:aw])
-                    m.d.sync += [base.eq(rp), after_c5.eq(0)]
+                    # the ring frees the packet; the reader goes on from the byte after it
+                    m.d.sync += [base.eq(rp), after_c5.eq(0), delivering.eq(0)]
                     m.next = "SEARCH"
         return m

@@ -30,7 +30,7 @@ from model.link import (
 from model.matched_filter import K_MAX, L_MAX
 from model.registers import REGISTERS
 
-from ._link_rx import LinkReceiver, check_buffer_bytes, max_payload
+from ._link_rx import RD_LATENCY, LinkReceiver, check_buffer_bytes, max_payload
 from ._link_tx import ACK_INFO, FRAME_BYTE, LinkTransmitter
 from .layouts import config_signature
 from .matched_filter import COEF_WRITE
@@ -48,7 +48,7 @@ POWER_ON_COEF = 1
 #: ``tx`` (receiver caught up with the line, idle transmitter, ``tx`` ready), for the commands
 #: answered at once. Bytes arriving on every clock add two (the receiver's sync and header
 #: checks, each a clock of its own, fall behind the line).
-ACK_LATENCY = 15
+ACK_LATENCY = 21
 
 # payload bytes a command is checked and remembered by (BANK_COMMIT's K, L, crc is the longest)
 _KEY_BYTES = 6
@@ -171,9 +171,11 @@ class Link(wiring.Component):
         word = Cat(p[0], p[1])  # READ_REG/WRITE_REG address, BANK_WRITE first word
         value = Cat(p[2], p[3], p[4], p[5])  # WRITE_REG value, BANK_COMMIT crc
         k_new, l_new = p[0], p[1]
-        fetch = Signal(range(_KEY_BYTES + 1))
+        fetch = Signal(range(_KEY_BYTES + RD_LATENCY))
         off = Signal(16)  # BANK_WRITE: payload byte read
-        got, got_hi, got_last = Signal(), Signal(), Signal()
+        # BANK_WRITE: whether offset `off` is in the payload, its byte the high one, the last
+        got_q = [Signal(3, name=f"got{n}") for n in range(RD_LATENCY)]
+        got, got_hi, got_last = got_q[-1][0], got_q[-1][1], got_q[-1][2]
         lo = Signal(8)
         waddr = Signal(range(BANK_WORDS + 1))
         scan = Signal(range(BANK_WORDS + 3))
@@ -203,14 +205,14 @@ class Link(wiring.Component):
                     m.d.sync += fetch.eq(0)
                     m.next = "FETCH"
             with m.State("FETCH"):
-                # one payload byte per clock, each the clock after its offset
+                # one payload byte per clock, each RD_LATENCY clocks after its offset
                 m.d.comb += rx.rd_offset.eq(fetch)
                 m.d.sync += fetch.eq(fetch + 1)
                 with m.Switch(fetch):
-                    for n in range(1, _KEY_BYTES + 1):
-                        with m.Case(n):
-                            m.d.sync += p[n - 1].eq(Mux(n - 1 < pkt.length, rx.rd_data, 0))
-                with m.If(fetch == _KEY_BYTES):
+                    for n in range(_KEY_BYTES):
+                        with m.Case(n + RD_LATENCY):
+                            m.d.sync += p[n].eq(Mux(n < pkt.length, rx.rd_data, 0))
+                with m.If(fetch == _KEY_BYTES - 1 + RD_LATENCY):
                     m.next = "CHECK"
             with m.State("CHECK"):
                 # the checks of `flags` are registered in two stages (CHECK, CHECK2), so
@@ -228,12 +230,14 @@ class Link(wiring.Component):
                     m.next = "DONE"
                 with m.Else():
                     self._execute(m, respond, flags, regs, word, value, status,
-                                  dict(off=off, got=got, waddr=waddr, scan=scan,
+                                  dict(off=off, got=got_q, waddr=waddr, scan=scan,
                                        commit=commit))
             with m.State("BANK_WRITE"):
+                # what is known of offset `off` travels beside its read, RD_LATENCY clocks
                 m.d.comb += rx.rd_offset.eq(off)
-                m.d.sync += [off.eq(off + 1), got.eq(off < pkt.length), got_hi.eq(off[0]),
-                             got_last.eq(off + 1 == pkt.length)]
+                m.d.sync += [off.eq(off + 1),
+                             got_q[0].eq(Cat(off < pkt.length, off[0], off + 1 == pkt.length))]
+                m.d.sync += [got_q[n].eq(got_q[n - 1]) for n in range(1, RD_LATENCY)]
                 with m.If(got & ~got_hi):
                     m.d.sync += lo.eq(rx.rd_data)
                 with m.If(got & got_hi):
@@ -375,7 +379,8 @@ class Link(wiring.Component):
             with m.Elif(f["bw_bad_address"]):
                 respond(ErrorCode.BAD_ADDRESS)
             with m.Else():
-                m.d.sync += [st["off"].eq(2), st["got"].eq(0), st["waddr"].eq(word)]
+                m.d.sync += [st["off"].eq(2), st["waddr"].eq(word)]
+                m.d.sync += [g.eq(0) for g in st["got"]]
                 m.next = "BANK_WRITE"
         with m.Elif(f[PacketType.BANK_CRC]):
             m.d.sync += [st["scan"].eq(0), st["commit"].eq(0)]

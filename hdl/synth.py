@@ -159,9 +159,11 @@ class PortShell(Elaboratable):
         from amaranth.lib.wiring import Flow
 
         member = self.core.signature.members[name]
+        if member.flow != Flow.In:  # the link's `cfg_*`, `taps`, ... are outputs: timed
+            return False
         if member.is_signature:  # a stage's own `cfg`, or a join's `cfg_filter`, ...
             return name.startswith(self.STATIC_PREFIX)
-        return member.flow == Flow.In and name in self.STATIC_NAMES
+        return name in self.STATIC_NAMES
 
     def elaborate(self, platform):
         from amaranth.hdl import Cat, Module
