@@ -5,8 +5,9 @@ receiver of ``model.device.Device``: it finds a candidate at every ``C5 3A``, ch
 CRC and the length, then the payload CRC, and after any rejection searches again from the byte
 after the candidate's first sync byte. To do so without losing a byte it keeps every received
 byte from the oldest one it may still need to search in a ring buffer, and parses from the ring
-at its own read pointer: a rejection moves that pointer back (a replay), it never moves the
-writer. A delivered packet's payload stays in the ring until the command executor has read it.
+at its own read pointer, through a short queue a reader keeps filled: a rejection moves that
+pointer back (a replay) and empties the queue, it never moves the writer. A delivered packet's
+payload stays in the ring until the command executor has read it.
 """
 
 from __future__ import annotations
@@ -74,22 +75,26 @@ class LinkReceiver(wiring.Component):
     rd_offset : In(range(max_payload))
         While ``pkt.valid``: a payload byte offset to read.
     rd_data : Out(8)
-        The payload byte at the ``rd_offset`` of the previous clock.
+        The payload byte at the ``rd_offset`` of :data:`RD_LATENCY` (3) clocks before.
     bad : Out(32)
         Rejected candidates (header CRC, length, payload CRC), modulo 2^32: the model's
         ``parser.counters.bad``.
 
     Notes
     -----
-    Latency: ``pkt.valid`` is high 3 clocks after the clock on which the last CRC byte is taken
-    on ``i``, when the parser has caught up with the line (reading the byte, checking the CRC,
-    delivering). The parser reads one ring byte per clock, searching, in a header, a payload or
-    a replay alike, so a replay of ``n`` bytes costs ``n`` clocks; it spends one more clock
-    after a sync word, a header and a CRC to act on them, so that the ring's output (5.8 ns from
-    the clock on an ECP5) only ever drives flip-flops. A rejection costs no further clock. Known
-    failure mode: a line without flow control loses bytes while ``i.ready`` is low; that needs a
-    candidate whose header passes its CRC by chance (odds 2^-16 per false sync word) with a
-    length near the maximum, decided while the line keeps sending.
+    Latency: ``pkt.valid`` is high 7 clocks after the clock on which the last CRC byte is taken
+    on ``i``, when the parser has caught up with the line (a clock to fetch the byte, two in
+    the block RAM, two through the queue, one to check the CRC, one to deliver). A reader
+    fetches the ring's bytes in order into a queue of 8 ahead of the parser, which takes one
+    byte per clock, searching, in a header, a payload or a replay alike, and spends one more
+    clock after a sync word, a header and a CRC to act on them; bytes arriving on every clock
+    are kept up with. A rejection flushes the queue and fetches again from the candidate's
+    third byte, so a replay of ``n`` bytes costs ``n + 4`` clocks. The ring is read through the
+    block's output register (:class:`hdl._bram.BlockRAM`), and the parser's compares read the
+    queue's output register: no path runs from the ring's array to logic. Known failure mode:
+    a line without flow control loses bytes while ``i.ready`` is low; that needs a candidate
+    whose header passes its CRC by chance (odds 2^-16 per false sync word) with a length near
+    the maximum, decided while the line keeps sending.
     """
 
     def __init__(self, buffer_bytes: int = 2048):
@@ -120,8 +125,15 @@ class LinkReceiver(wiring.Component):
         fp = Signal(aw + 1)  # next byte the reader fetches into the queue
         rp = Signal(aw + 1)  # next byte parsed: the queue's head when it has one
         base = Signal(aw + 1)  # oldest byte still needed: rp, or a candidate's third byte
+        # `ready` is a register, from this clock's `wp` and `base`: `base` only ever moves
+        # forward, so the bytes held are at most what it counts, and `ready` is low for at most
+        # a clock after the ring stops being full (as a function of them it was the path from
+        # the pointers through a subtraction and a compare to the block's write enable)
+        ready = Signal(init=1)
+        used = Signal(aw + 1)
         m.d.comb += [
-            self.i.ready.eq((wp - base)[:aw + 1] != size),
+            used.eq(wp - base),
+            self.i.ready.eq(ready),
             ring.w_addr.eq(wp[:aw]),
             ring.w_data.eq(self.i.payload),
             ring.w_en.eq(self.i.valid & self.i.ready),
@@ -130,6 +142,7 @@ class LinkReceiver(wiring.Component):
         ]
         with m.If(ring.w_en):
             m.d.sync += wp.eq(wp + 1)
+        m.d.sync += ready.eq(Mux(ring.w_en, used != size - 1, used != size))
 
         # The reader: ring bytes from fp into a queue the parser takes from, ahead of the
         # parser by at most _QUEUE bytes (credits), so that a byte is read once, in order,
@@ -172,8 +185,25 @@ class LinkReceiver(wiring.Component):
         byte = queue.r_data
         hdr = [Signal(8, name=f"hdr{n}") for n in range(_AFTER_SYNC)]  # type, seq, length, hcrc
         length = Cat(hdr[2], hdr[3])
-        count = Signal(16)  # bytes of the header, payload or CRC field taken so far
+        count = Signal(range(_AFTER_SYNC))  # bytes of the header or the CRC taken so far
+        # payload bytes still to take, and whether the next is the last: the payload's end is
+        # a flag, not an add and a compare with the length in front of the parser's state
         rx_crc = Signal(8 * CRC_BYTES)
+        rem = Signal(16)
+        rem_last = Signal()
+        # the length's tests, registered every clock: the length's bytes are in two clocks or
+        # more before HEADER_CHECK reads them (the CRC's two bytes come after)
+        too_long, len_zero, len_one = Signal(), Signal(), Signal()
+        m.d.sync += [too_long.eq(length > self.max_payload), len_zero.eq(length == 0),
+                     len_one.eq(length == 1)]
+        # and the header's CRC against its last two bytes, the second as it is taken (the
+        # header CRC is final by then: it took its last byte, the length's, two bytes before)
+        hcrc_ok = Signal()
+        m.d.sync += hcrc_ok.eq(Cat(hdr[4], byte) == hcrc.crc)
+        # the same for the payload's CRC, its last byte as it is taken (the body CRC took the
+        # payload's last byte four bytes before)
+        bcrc_ok = Signal()
+        m.d.sync += bcrc_ok.eq(Cat(rx_crc[8:], byte) == bcrc.crc)
         after_c5 = Signal()  # the previous byte searched was the first sync byte
         found = Signal()  # the byte searched on the previous clock completed a sync word
         sync0, sync1 = LINK_SYNC_BYTES
@@ -223,18 +253,18 @@ class LinkReceiver(wiring.Component):
                         m.next = "HEADER_CHECK"
             with m.State("HEADER_CHECK"):
                 # a clock of its own: the header's CRC compare decides a replay's flush
-                with m.If((Cat(hdr[4], hdr[5]) != hcrc.crc) | (length > self.max_payload)):
+                with m.If(~hcrc_ok | too_long):
                     reject()
-                with m.Elif(length == 0):
+                with m.Elif(len_zero):
                     m.next = "CRC"
                 with m.Else():
+                    m.d.sync += [rem.eq(length), rem_last.eq(len_one)]
                     m.next = "PAYLOAD"
             with m.State("PAYLOAD"):
                 with m.If(avail):
                     m.d.comb += [take.eq(1), b_valid.eq(1)]
-                    m.d.sync += count.eq(count + 1)
-                    with m.If(count + 1 == length):
-                        m.d.sync += count.eq(0)
+                    m.d.sync += [rem.eq(rem - 1), rem_last.eq(rem == 2)]
+                    with m.If(rem_last):
                         m.next = "CRC"
             with m.State("CRC"):
                 with m.If(avail):
@@ -243,7 +273,7 @@ class LinkReceiver(wiring.Component):
                     with m.If(count == CRC_BYTES - 1):
                         m.next = "CRC_CHECK"
             with m.State("CRC_CHECK"):
-                with m.If(rx_crc == bcrc.crc):
+                with m.If(bcrc_ok):
                     # the executor takes the read port: what the reader fetched past the
                     # packet is dropped, and fetched again after it
                     m.d.comb += flush.eq(1)

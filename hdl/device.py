@@ -14,7 +14,7 @@ from functools import reduce
 from operator import and_, or_
 
 from amaranth.hdl import Cat, Const, Module, Mux, Signal
-from amaranth.lib import memory, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.link import (
@@ -30,8 +30,9 @@ from model.link import (
 from model.matched_filter import K_MAX, L_MAX
 from model.registers import REGISTERS
 
+from ._bram import BlockRAM
 from ._link_rx import RD_LATENCY, LinkReceiver, check_buffer_bytes, max_payload
-from ._link_tx import ACK_INFO, FRAME_BYTE, LinkTransmitter
+from ._link_tx import ACK_INFO, ACK_PAYLOAD_MAX, FRAME_BYTE, LinkTransmitter
 from .layouts import config_signature
 from .matched_filter import COEF_WRITE
 
@@ -47,8 +48,11 @@ POWER_ON_COEF = 1
 #: Clocks from a command's last byte taken on ``rx`` to its acknowledgement's first byte on
 #: ``tx`` (receiver caught up with the line, idle transmitter, ``tx`` ready), for the commands
 #: answered at once. Bytes arriving on every clock add two (the receiver's sync and header
-#: checks, each a clock of its own, fall behind the line).
-ACK_LATENCY = 21
+#: checks, each a clock of its own, fall behind the line). 15 until the twenty-fifth session,
+#: which read the ring through the block RAM's output register (four clocks more in the
+#: receiver, two in the payload's fetch), plans the answer a clock before its decision and
+#: loads it a clock after.
+ACK_LATENCY = 23
 
 # payload bytes a command is checked and remembered by (BANK_COMMIT's K, L, crc is the longest)
 _KEY_BYTES = 6
@@ -104,17 +108,18 @@ class Link(wiring.Component):
     Notes
     -----
     Latency, with the transmitter idle and ``tx`` ready: the first acknowledgement byte is on
-    ``tx`` ``ACK_LATENCY = 15`` clocks after the command's last byte was taken on ``rx`` (3 to
-    read the CRC byte, check it and deliver, 7 to fetch the payload head, 2 to check it
-    (``CHECK``, ``CHECK2``), 1 to decide, 2 to start the packet), two more when the bytes
-    came on consecutive clocks; an acknowledgement of ``n`` payload bytes then takes ``12 +
-    n`` clocks.
-    ``BANK_WRITE`` of ``n`` words adds ``2 n + 1`` clocks (a payload byte per clock),
+    ``tx`` ``ACK_LATENCY = 23`` clocks after the command's last byte was taken on ``rx`` (7 to
+    read the CRC byte through the receiver's ring and queue, check it and deliver, 9 to fetch
+    the payload head, six bytes each ``RD_LATENCY = 3`` clocks after its offset, 2 to check it
+    (``CHECK``, ``CHECK2``), 1 to plan the answer (``PLAN``), 1 to decide, 1 to load the
+    acknowledgement (``DONE``), 2 to start the packet), two more when the bytes came on
+    consecutive clocks; an acknowledgement of ``n`` payload bytes then takes ``12 + n``
+    clocks. ``BANK_WRITE`` of ``n`` words adds ``2 n + 3`` clocks (a payload byte per clock),
     ``BANK_CRC`` ``BANK_WORDS + 3`` (a shadow word per clock through the CRC), ``BANK_COMMIT``
-    ``BANK_WORDS + 4 + 2 K L`` once ``frame_idle`` is high (the copy writes a coefficient every
-    other clock). A command waits until the previous acknowledgement has left the transmitter
-    (one buffer, which keeps the last acknowledgement for a retry); meanwhile the receiver's
-    ring keeps taking bytes.
+    ``BANK_WORDS + 5 + 3 K L`` once ``frame_idle`` is high (the copy writes a coefficient every
+    third clock: the shadow is read through the block's two registers). A command waits until
+    the previous acknowledgement has left the transmitter (one buffer, which keeps the last
+    acknowledgement for a retry); meanwhile the receiver's ring keeps taking bytes.
     """
 
     def __init__(self, fifo_capacity: int = FIFO_BYTES, rx_buffer: int = 2048):
@@ -148,9 +153,11 @@ class Link(wiring.Component):
         wiring.connect(m, tx.o, wiring.flipped(self.tx))
         wiring.connect(m, wiring.flipped(self.frame), tx.frame)
 
-        shadow = m.submodules.shadow = memory.Memory(shape=16, depth=BANK_WORDS, init=[])
-        sw = shadow.write_port()
-        sr = shadow.read_port()
+        # the shadow is read through the block's output register (two clocks), so that its
+        # data drives the CRC and the coefficient port from a flip-flop (the block RAM's own
+        # output, 5.8 ns from the clock, was the link's worst path once the ring's was gone)
+        shadow = m.submodules.shadow = BlockRAM(16, BANK_WORDS)
+        m.d.comb += [shadow.r_en.eq(1), shadow.r_oce.eq(1)]
         m.submodules.scan_crc = scan_crc = _bank_crc()
 
         regs = [getattr(getattr(self, f"cfg_{r.group}"), r.name) for r in REGISTERS]
@@ -178,18 +185,35 @@ class Link(wiring.Component):
         got, got_hi, got_last = got_q[-1][0], got_q[-1][1], got_q[-1][2]
         lo = Signal(8)
         waddr = Signal(range(BANK_WORDS + 1))
-        scan = Signal(range(BANK_WORDS + 3))
+        scan = Signal(range(BANK_WORDS + 4))
         commit = Signal()  # the scan is a commit's check, not BANK_CRC
+        crc_ok = Signal()  # the shadow's CRC is the commit's, on the clock before
+        # scan = BANK_WORDS + 2, + 3, from compares a clock before: in SCAN it counts a clock
+        # at a time from 0, and it never stops at BANK_WORDS + 1 or + 2 (a scan ends at + 2 or
+        # + 3 and moves on), so the flags are false in a scan's first two clocks
+        scan_at = Signal(2)
+        m.d.sync += scan_at.eq(Cat(scan == BANK_WORDS + 1, scan == BANK_WORDS + 2))
         k, j = Signal(range(K_MAX)), Signal(_J_BITS)
+        k_last, j_last = Signal(), Signal()  # k + 1 == K, j + 1 == L, a clock ahead
 
         key = Cat(pkt.type, pkt.seq, pkt.length, *p)
         flags = self._checks(m, pkt, key, last, last_valid, regs, word, value, k_new, l_new)
+        srcs = {"none": 0, "version": 1, "read": 2, "status": 3, "crc": 4, "bank": 5}
+        plan = self._plan(m, flags, srcs, ack.length)
 
-        def respond(err, data=None, nbytes=0):
+        # An answer is decided in two steps: the decision (deep: the state, the checks, the
+        # command) sets a few small registers, the error code, the length and where the data
+        # comes from (`src`); DONE then loads the acknowledgement's 34 bytes from them (their
+        # load enable and choice, straight from the decision, were the link's worst path).
+        src = Signal(range(len(srcs)))
+        new_err = Signal(8)
+        new_len = Signal.like(ack.length)
+        fresh = Signal()  # DONE loads a new acknowledgement (not a retry's, kept as it is)
+
+        def respond(err, data="none", nbytes=0):
             err = Const(int(err), 8)
-            m.d.sync += [ack.length.eq(1 + nbytes),
-                         ack.data.eq(err if data is None else Cat(err, data)),
-                         ack_valid.eq(1)]
+            m.d.sync += [new_err.eq(err), new_len.eq(1 + nbytes), src.eq(srcs[data]),
+                         fresh.eq(1)]
             if err.value:
                 m.d.sync += last_error.eq(err)
             m.next = "DONE"
@@ -217,21 +241,39 @@ class Link(wiring.Component):
             with m.State("CHECK"):
                 # the checks of `flags` are registered in two stages (CHECK, CHECK2), so
                 # DECIDE sees them as flip-flops: compares and a choice among the registers,
-                # which did not fit one clock
+                # which did not fit one clock; the plan made of them is a third (PLAN)
                 m.next = "CHECK2"
             with m.State("CHECK2"):
+                m.next = "PLAN"
+            with m.State("PLAN"):
                 m.next = "DECIDE"
             with m.State("DECIDE"):
                 m.d.sync += [last.eq(key), last_valid.eq(1),
                              ack.type.eq(PacketType.ACK | pkt.type[:7]), ack.seq.eq(pkt.seq)]
                 with m.If(flags["retry"]):
                     # a retry (the model's rule): the same acknowledgement, nothing redone
-                    m.d.sync += ack_valid.eq(1)  # type and seq: the key's, as before
+                    m.d.sync += fresh.eq(0)  # type and seq: the key's, as before
                     m.next = "DONE"
+                with m.Elif(plan["bank_write"]):
+                    m.d.sync += [off.eq(2), waddr.eq(word)]
+                    m.d.sync += [g.eq(0) for g in got_q]
+                    m.next = "BANK_WRITE"
+                with m.Elif(plan["scan"]):
+                    m.d.sync += [scan.eq(0), commit.eq(plan["commit"])]
+                    m.next = "SCAN"
                 with m.Else():
-                    self._execute(m, respond, flags, regs, word, value, status,
-                                  dict(off=off, got=got_q, waddr=waddr, scan=scan,
-                                       commit=commit))
+                    m.d.sync += [new_err.eq(plan["err"]), new_len.eq(plan["len"]),
+                                 src.eq(plan["src"]), fresh.eq(1)]
+                    with m.If(plan["bad"]):
+                        m.d.sync += last_error.eq(plan["err"])
+                    for on, reg in zip(flags["sel"], regs, strict=True):
+                        with m.If(plan["write"] & on):
+                            m.d.sync += reg.eq(value)
+                    with m.If(plan["start"]):
+                        m.d.sync += self.acquiring.eq(1)
+                    with m.If(plan["stop"]):
+                        m.d.sync += self.acquiring.eq(0)
+                    m.next = "DONE"
             with m.State("BANK_WRITE"):
                 # what is known of offset `off` travels beside its read, RD_LATENCY clocks
                 m.d.comb += rx.rd_offset.eq(off)
@@ -241,21 +283,24 @@ class Link(wiring.Component):
                 with m.If(got & ~got_hi):
                     m.d.sync += lo.eq(rx.rd_data)
                 with m.If(got & got_hi):
-                    m.d.comb += [sw.en.eq(1), sw.addr.eq(waddr), sw.data.eq(Cat(lo, rx.rd_data))]
+                    m.d.comb += [shadow.w_en.eq(1), shadow.w_addr.eq(waddr),
+                                 shadow.w_data.eq(Cat(lo, rx.rd_data))]
                     m.d.sync += waddr.eq(waddr + 1)
                     with m.If(got_last):
                         respond(ErrorCode.OK)
             with m.State("SCAN"):
-                # word a is read at scan = a, registered, and enters the CRC at scan = a + 2
-                # (the block RAM's slow output drives flip-flops, not the 16-bit CRC network)
-                m.d.comb += sr.addr.eq(scan)
-                m.d.sync += [scan.eq(scan + 1), scan_crc.data.eq(sr.data),
+                # word a is read at scan = a and enters the CRC at scan = a + 2 from the
+                # block's output register; the CRC is final at scan = BANK_WORDS + 2, and a
+                # commit compares it there, registered, and decides a clock later
+                m.d.comb += [shadow.r_addr.eq(scan), scan_crc.data.eq(shadow.r_data)]
+                m.d.sync += [scan.eq(scan + 1),
                              scan_crc.start.eq(scan == 1),
-                             scan_crc.valid.eq((scan >= 1) & (scan <= BANK_WORDS))]
-                with m.If(scan == BANK_WORDS + 2):
-                    with m.If(~commit):
-                        respond(ErrorCode.OK, scan_crc.crc, 4)
-                    with m.Elif(scan_crc.crc != value):
+                             scan_crc.valid.eq((scan >= 1) & (scan <= BANK_WORDS)),
+                             crc_ok.eq(scan_crc.crc == value)]
+                with m.If(scan_at[0] & ~commit):
+                    respond(ErrorCode.OK, "crc", 4)
+                with m.If(scan_at[1]):  # a commit's
+                    with m.If(~crc_ok):
                         respond(ErrorCode.CRC_MISMATCH)
                     with m.Else():
                         m.d.sync += self.bank_busy.eq(1)
@@ -265,24 +310,42 @@ class Link(wiring.Component):
                     m.d.sync += [k.eq(0), j.eq(0)]
                     m.next = "COPY_READ"
             with m.State("COPY_READ"):
-                m.d.comb += sr.addr.eq(Cat(j, k))
+                m.d.comb += shadow.r_addr.eq(Cat(j, k))
+                # the copy's end, registered here for COPY_WRITE: the adds and compares on
+                # `j` and `k` were in front of the acknowledgement's registers (10.6 ns)
+                m.d.sync += [j_last.eq(j + 1 == l_new), k_last.eq(k + 1 == k_new)]
+                m.next = "COPY_WAIT"
+            with m.State("COPY_WAIT"):  # the block's second clock
+                m.d.comb += shadow.r_addr.eq(Cat(j, k))
                 m.next = "COPY_WRITE"
             with m.State("COPY_WRITE"):
-                m.d.comb += [sr.addr.eq(Cat(j, k)),  # holds the word read
+                m.d.comb += [shadow.r_addr.eq(Cat(j, k)),  # holds the word read
                              self.coef.valid.eq(1), self.coef.payload.addr.eq(Cat(j, k)),
-                             self.coef.payload.data.eq(sr.data)]
+                             self.coef.payload.data.eq(shadow.r_data)]
                 with m.If(self.coef.ready):
                     m.d.sync += j.eq(j + 1)
                     m.next = "COPY_READ"
-                    with m.If(j + 1 == l_new):
+                    with m.If(j_last):
                         m.d.sync += [j.eq(0), k.eq(k + 1)]
-                        with m.If(k + 1 == k_new):
+                        with m.If(k_last):
                             m.d.sync += [self.templates.eq(k_new), self.taps.eq(l_new),
                                          self.bank_id.eq(self.bank_id + 1),
                                          self.bank_busy.eq(0)]
-                            respond(ErrorCode.OK, (self.bank_id + 1)[:8], 1)
+                            respond(ErrorCode.OK, "bank", 1)
             with m.State("DONE"):
                 m.d.comb += rx.pkt.ready.eq(1)
+                m.d.sync += ack_valid.eq(1)
+                with m.If(fresh):
+                    # every source holds its value from the decision to here, the status
+                    # counters but for a clock, and `bank_id` is the new one already
+                    body = Signal(8 * (ACK_PAYLOAD_MAX - 1))
+                    with m.Switch(src):
+                        for name, value in (("version", Const(PROTOCOL_VERSION, 8)),
+                                            ("read", flags["read"]), ("status", status),
+                                            ("crc", scan_crc.crc), ("bank", self.bank_id)):
+                            with m.Case(srcs[name]):
+                                m.d.comb += body.eq(value)
+                    m.d.sync += [ack.length.eq(new_len), ack.data.eq(Cat(new_err, body))]
                 m.next = "IDLE"
         return m
 
@@ -318,7 +381,11 @@ class Link(wiring.Component):
             "bw_bad_address", "bad_kl")}
         f.update({c: Signal(name=f"is_{c.name.lower()}") for c in _COMMANDS})
         f["read"] = Signal(32, name="chk_read")
-        n_words = (pkt.length - 2)[1:16]
+        # BANK_WRITE's words, from the length (held from DELIVER on, so a clock early costs
+        # nothing), then the end address: each an add of its own before the compare
+        n_words = Signal(15, name="chk_n_words")
+        bw_end = Signal(17, name="chk_bw_end")
+        m.d.sync += [n_words.eq((pkt.length - 2)[1:16]), bw_end.eq(word + n_words)]
         sel = [Signal(name=f"chk_sel{i}") for i in range(len(REGISTERS))]
         rng = [Signal(name=f"chk_rng{i}") for i in range(len(REGISTERS))]
         m.d.sync += [sel[i].eq(word == r.address) for i, r in enumerate(REGISTERS)]
@@ -341,7 +408,7 @@ class Link(wiring.Component):
             f["bad_address"].eq(word >= len(REGISTERS)),
             f["bw_bad_length"].eq((pkt.length < 4) | pkt.length[0]
                                   | (pkt.length > 2 + 2 * BANK_WRITE_MAX)),
-            f["bw_bad_address"].eq(word + n_words > BANK_WORDS),
+            f["bw_bad_address"].eq(bw_end > BANK_WORDS),
             f["bad_kl"].eq((k_new < 1) | (k_new > K_MAX) | (l_new < 1) | (l_new > L_MAX)),
         ]
         m.d.sync += [f[c].eq(pkt.type == c) for c in _COMMANDS]
@@ -353,52 +420,67 @@ class Link(wiring.Component):
                         m.d.sync += f["bad_length"].eq(pkt.length != _FIXED_LENGTH[c])
         return f
 
-    def _execute(self, m, respond, f, regs, word, value, status, st):
-        """Decide a command that is not a retry (the model's ``Device._execute``)."""
+    def _plan(self, m, f, srcs, ack_length):
+        """What a command that is not a retry does (the model's ``Device._execute``), worked
+        out every clock from the checks and registered, so that DECIDE acts on flip-flops:
+        the decision's order of tests (six deep) was the link's worst path, into the error
+        register and the registers' writes.
+
+        Returns the plan's registers: ``err`` (the answer's error code), ``bad`` (``err`` is
+        not OK), ``src`` and ``len`` (the answer's data and length), and one flag per action
+        besides answering: ``write`` (WRITE_REG's write), ``start``, ``stop``, ``bank_write``,
+        ``scan`` (BANK_CRC and BANK_COMMIT, which answer after the scan) and ``commit``.
+        """
+        plan = {"err": Signal(8, name="plan_err"), "bad": Signal(name="plan_bad"),
+                "src": Signal(range(len(srcs)), name="plan_src"),
+                "len": Signal.like(ack_length, name="plan_len")}
+        acts = ("write", "start", "stop", "bank_write", "scan", "commit")
+        plan.update({a: Signal(name=f"plan_{a}") for a in acts})
+        m.d.sync += [plan[a].eq(0) for a in acts]
+
+        def answer(err, data="none", nbytes=0, act=None):
+            err = int(err)
+            m.d.sync += [plan["err"].eq(err), plan["bad"].eq(err != ErrorCode.OK),
+                         plan["src"].eq(srcs[data]), plan["len"].eq(1 + nbytes)]
+            if act is not None:
+                m.d.sync += plan[act].eq(1)
+
         with m.If(~f["known"]):
-            respond(ErrorCode.BAD_COMMAND)
+            answer(ErrorCode.BAD_COMMAND)
         with m.Elif(f["bad_length"]):
-            respond(ErrorCode.BAD_LENGTH)
+            answer(ErrorCode.BAD_LENGTH)
         with m.Elif(f[PacketType.PING]):
-            respond(ErrorCode.OK, Const(PROTOCOL_VERSION, 8), 1)
+            answer(ErrorCode.OK, "version", 1)
         with m.Elif(f[PacketType.READ_REG] | f[PacketType.WRITE_REG]):
             with m.If(f["bad_address"]):
-                respond(ErrorCode.BAD_ADDRESS)
+                answer(ErrorCode.BAD_ADDRESS)
             with m.Elif(f[PacketType.READ_REG]):
-                respond(ErrorCode.OK, f["read"], 4)
+                answer(ErrorCode.OK, "read", 4)
             with m.Elif(~f["in_range"]):
-                respond(ErrorCode.BAD_VALUE)
+                answer(ErrorCode.BAD_VALUE)
             with m.Else():
-                for on, reg in zip(f["sel"], regs, strict=True):
-                    with m.If(on):
-                        m.d.sync += reg.eq(value)
-                respond(ErrorCode.OK)
+                answer(ErrorCode.OK, act="write")
         with m.Elif(f[PacketType.BANK_WRITE]):
             with m.If(f["bw_bad_length"]):
-                respond(ErrorCode.BAD_LENGTH)
+                answer(ErrorCode.BAD_LENGTH)
             with m.Elif(f["bw_bad_address"]):
-                respond(ErrorCode.BAD_ADDRESS)
+                answer(ErrorCode.BAD_ADDRESS)
             with m.Else():
-                m.d.sync += [st["off"].eq(2), st["waddr"].eq(word)]
-                m.d.sync += [g.eq(0) for g in st["got"]]
-                m.next = "BANK_WRITE"
+                m.d.sync += plan["bank_write"].eq(1)
         with m.Elif(f[PacketType.BANK_CRC]):
-            m.d.sync += [st["scan"].eq(0), st["commit"].eq(0)]
-            m.next = "SCAN"
+            m.d.sync += plan["scan"].eq(1)
         with m.Elif(f[PacketType.BANK_COMMIT]):
             with m.If(f["bad_kl"]):
-                respond(ErrorCode.BAD_VALUE)
+                answer(ErrorCode.BAD_VALUE)
             with m.Else():
-                m.d.sync += [st["scan"].eq(0), st["commit"].eq(1)]
-                m.next = "SCAN"
+                m.d.sync += [plan["scan"].eq(1), plan["commit"].eq(1)]
         with m.Elif(f[PacketType.START]):
-            m.d.sync += self.acquiring.eq(1)
-            respond(ErrorCode.OK)
+            answer(ErrorCode.OK, act="start")
         with m.Elif(f[PacketType.STOP]):
-            m.d.sync += self.acquiring.eq(0)
-            respond(ErrorCode.OK)
+            answer(ErrorCode.OK, act="stop")
         with m.Else():  # STATUS, the last command
-            respond(ErrorCode.OK, status, STATUS.size)
+            answer(ErrorCode.OK, "status", STATUS.size)
+        return plan
 
 
 def _bank_crc():
