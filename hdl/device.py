@@ -209,6 +209,7 @@ class Link(wiring.Component):
         new_err = Signal(8)
         new_len = Signal.like(ack.length)
         fresh = Signal()  # DONE loads a new acknowledgement (not a retry's, kept as it is)
+        write = Signal()  # DONE writes the register WRITE_REG addressed
 
         def respond(err, data="none", nbytes=0):
             err = Const(int(err), 8)
@@ -266,9 +267,7 @@ class Link(wiring.Component):
                                  src.eq(plan["src"]), fresh.eq(1)]
                     with m.If(plan["bad"]):
                         m.d.sync += last_error.eq(plan["err"])
-                    for on, reg in zip(flags["sel"], regs, strict=True):
-                        with m.If(plan["write"] & on):
-                            m.d.sync += reg.eq(value)
+                    m.d.sync += write.eq(plan["write"])
                     with m.If(plan["start"]):
                         m.d.sync += self.acquiring.eq(1)
                     with m.If(plan["stop"]):
@@ -334,7 +333,13 @@ class Link(wiring.Component):
                             respond(ErrorCode.OK, "bank", 1)
             with m.State("DONE"):
                 m.d.comb += rx.pkt.ready.eq(1)
-                m.d.sync += ack_valid.eq(1)
+                m.d.sync += [ack_valid.eq(1), write.eq(0)]
+                # WRITE_REG's write, a clock after the decision: its enable is then two
+                # flip-flops' AND at every register (from the decision it was the device's worst
+                # path, to registers placed beside the stages that read them)
+                for on, reg in zip(flags["sel"], regs, strict=True):
+                    with m.If(write & on):
+                        m.d.sync += reg.eq(value)
                 with m.If(fresh):
                     # every source holds its value from the decision to here, the status
                     # counters but for a clock, and `bank_id` is the new one already
