@@ -157,8 +157,11 @@ class Link(wiring.Component):
         # data drives the CRC and the coefficient port from a flip-flop (the block RAM's own
         # output, 5.8 ns from the clock, was the link's worst path once the ring's was gone)
         shadow = m.submodules.shadow = BlockRAM(16, BANK_WORDS)
-        m.d.comb += [shadow.r_en.eq(1), shadow.r_oce.eq(1)]
         m.submodules.scan_crc = scan_crc = _bank_crc()
+        m.d.comb += [shadow.r_en.eq(1), shadow.r_oce.eq(1),
+                     # the CRC sees the block's output always (it takes it only while scanning):
+                     # chosen by the state, the data brought the state into the CRC's network
+                     scan_crc.data.eq(shadow.r_data)]
 
         regs = [getattr(getattr(self, f"cfg_{r.group}"), r.name) for r in REGISTERS]
         last_error = Signal(8)
@@ -291,7 +294,7 @@ class Link(wiring.Component):
                 # word a is read at scan = a and enters the CRC at scan = a + 2 from the
                 # block's output register; the CRC is final at scan = BANK_WORDS + 2, and a
                 # commit compares it there, registered, and decides a clock later
-                m.d.comb += [shadow.r_addr.eq(scan), scan_crc.data.eq(shadow.r_data)]
+                m.d.comb += shadow.r_addr.eq(scan)
                 m.d.sync += [scan.eq(scan + 1),
                              scan_crc.start.eq(scan == 1),
                              scan_crc.valid.eq((scan >= 1) & (scan <= BANK_WORDS)),
