@@ -211,13 +211,15 @@ class Link(wiring.Component):
         src = Signal(range(len(srcs)))
         new_err = Signal(8)
         new_len = Signal.like(ack.length)
-        fresh = Signal()  # DONE loads a new acknowledgement (not a retry's, kept as it is)
-        write = Signal()  # DONE writes the register WRITE_REG addressed
+        # high for DONE's clock only: it loads a new acknowledgement (not a retry's, which is
+        # kept as it is), it writes the register WRITE_REG addressed
+        load, write = Signal(), Signal()
+        m.d.sync += [load.eq(0), write.eq(0)]
 
         def respond(err, data="none", nbytes=0):
             err = Const(int(err), 8)
             m.d.sync += [new_err.eq(err), new_len.eq(1 + nbytes), src.eq(srcs[data]),
-                         fresh.eq(1)]
+                         load.eq(1)]
             if err.value:
                 m.d.sync += last_error.eq(err)
             m.next = "DONE"
@@ -256,7 +258,7 @@ class Link(wiring.Component):
                              ack.type.eq(PacketType.ACK | pkt.type[:7]), ack.seq.eq(pkt.seq)]
                 with m.If(flags["retry"]):
                     # a retry (the model's rule): the same acknowledgement, nothing redone
-                    m.d.sync += fresh.eq(0)  # type and seq: the key's, as before
+                    # (no `load`: type and seq are the key's, as before)
                     m.next = "DONE"
                 with m.Elif(plan["bank_write"]):
                     m.d.sync += [off.eq(2), waddr.eq(word)]
@@ -267,7 +269,7 @@ class Link(wiring.Component):
                     m.next = "SCAN"
                 with m.Else():
                     m.d.sync += [new_err.eq(plan["err"]), new_len.eq(plan["len"]),
-                                 src.eq(plan["src"]), fresh.eq(1)]
+                                 src.eq(plan["src"]), load.eq(1)]
                     with m.If(plan["bad"]):
                         m.d.sync += last_error.eq(plan["err"])
                     m.d.sync += write.eq(plan["write"])
@@ -336,25 +338,27 @@ class Link(wiring.Component):
                             respond(ErrorCode.OK, "bank", 1)
             with m.State("DONE"):
                 m.d.comb += rx.pkt.ready.eq(1)
-                m.d.sync += [ack_valid.eq(1), write.eq(0)]
-                # WRITE_REG's write, a clock after the decision: its enable is then two
-                # flip-flops' AND at every register (from the decision it was the device's worst
-                # path, to registers placed beside the stages that read them)
-                for on, reg in zip(flags["sel"], regs, strict=True):
-                    with m.If(write & on):
-                        m.d.sync += reg.eq(value)
-                with m.If(fresh):
-                    # every source holds its value from the decision to here, the status
-                    # counters but for a clock, and `bank_id` is the new one already
-                    body = Signal(8 * (ACK_PAYLOAD_MAX - 1))
-                    with m.Switch(src):
-                        for name, value in (("version", Const(PROTOCOL_VERSION, 8)),
-                                            ("read", flags["read"]), ("status", status),
-                                            ("crc", scan_crc.crc), ("bank", self.bank_id)):
-                            with m.Case(srcs[name]):
-                                m.d.comb += body.eq(value)
-                    m.d.sync += [ack.length.eq(new_len), ack.data.eq(Cat(new_err, body))]
+                m.d.sync += ack_valid.eq(1)
                 m.next = "IDLE"
+
+        # DONE's loads, enabled by flip-flops that are high only then (`load`, `write`), not by
+        # the state's decode: from the decision, and then from the state, each was the device's
+        # worst path, to the answer's 34 bytes and to registers placed beside their stages.
+        # WRITE_REG's write, a clock after the decision: its enable is two flip-flops' AND.
+        for on, reg in zip(flags["sel"], regs, strict=True):
+            with m.If(write & on):
+                m.d.sync += reg.eq(value)
+        with m.If(load):
+            # every source holds its value from the decision to here, the status counters but
+            # for a clock, and `bank_id` is the new one already
+            body = Signal(8 * (ACK_PAYLOAD_MAX - 1))
+            with m.Switch(src):
+                for name, data in (("version", Const(PROTOCOL_VERSION, 8)),
+                                   ("read", flags["read"]), ("status", status),
+                                   ("crc", scan_crc.crc), ("bank", self.bank_id)):
+                    with m.Case(srcs[name]):
+                        m.d.comb += body.eq(data)
+            m.d.sync += [ack.length.eq(new_len), ack.data.eq(Cat(new_err, body))]
         return m
 
     def _status(self, m, rx_bad, last_error):
