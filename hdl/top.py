@@ -9,7 +9,8 @@
 
 :class:`~hdl.device.Link` owns the registers, the shadow bank and its commit, ``START``/``STOP``
 and the acknowledgements; :class:`~hdl.pipeline.Pipeline` owns everything a frame goes through,
-the frame FIFO included. With ``uart_divisor=None`` the line is a byte stream each way (what the
+the frame FIFO included; a register slice carries the frame bytes between the two, which the
+placer puts apart. With ``uart_divisor=None`` the line is a byte stream each way (what the
 co-simulation bridge drives, :mod:`hdl.tb.bridge`); with an integer the UART of
 :mod:`hdl.uart` sits in front, at ``clock / uart_divisor`` baud.
 """
