@@ -182,6 +182,9 @@ class Link(wiring.Component):
         value = Cat(p[2], p[3], p[4], p[5])  # WRITE_REG value, BANK_COMMIT crc
         k_new, l_new = p[0], p[1]
         fetch = Signal(range(_KEY_BYTES + RD_LATENCY))
+        # whether the payload has byte n, from the length (held from delivery on) a clock ahead
+        has = Signal(_KEY_BYTES)
+        m.d.sync += has.eq(Cat(pkt.length > n for n in range(_KEY_BYTES)))
         off = Signal(16)  # BANK_WRITE: payload byte read
         # BANK_WRITE: whether offset `off` is in the payload, its byte the high one, the last
         got_q = [Signal(3, name=f"got{n}") for n in range(RD_LATENCY)]
@@ -241,7 +244,7 @@ class Link(wiring.Component):
                 with m.Switch(fetch):
                     for n in range(_KEY_BYTES):
                         with m.Case(n + RD_LATENCY):
-                            m.d.sync += p[n].eq(Mux(n < pkt.length, rx.rd_data, 0))
+                            m.d.sync += p[n].eq(Mux(has[n], rx.rd_data, 0))
                 with m.If(fetch == _KEY_BYTES - 1 + RD_LATENCY):
                     m.next = "CHECK"
             with m.State("CHECK"):
