@@ -186,9 +186,9 @@ class LinkReceiver(wiring.Component):
         hdr = [Signal(8, name=f"hdr{n}") for n in range(_AFTER_SYNC)]  # type, seq, length, hcrc
         length = Cat(hdr[2], hdr[3])
         count = Signal(range(_AFTER_SYNC))  # bytes of the header or the CRC taken so far
+        rx_crc = Signal(8 * CRC_BYTES)
         # payload bytes still to take, and whether the next is the last: the payload's end is
         # a flag, not an add and a compare with the length in front of the parser's state
-        rx_crc = Signal(8 * CRC_BYTES)
         rem = Signal(16)
         rem_last = Signal()
         # the length's tests, registered every clock: the length's bytes are in two clocks or

@@ -219,13 +219,20 @@ class Link(wiring.Component):
         load, write = Signal(), Signal()
         m.d.sync += [load.eq(0), write.eq(0)]
 
-        def respond(err, data="none", nbytes=0):
-            err = Const(int(err), 8)
-            m.d.sync += [new_err.eq(err), new_len.eq(1 + nbytes), src.eq(srcs[data]),
-                         load.eq(1)]
-            if err.value:
-                m.d.sync += last_error.eq(err)
+        def answer(err, data_src, length, bad):
+            """Set the answer DONE loads (`err`, `data_src`, `length`: values or constants);
+            `bad` (a flag, or a Python bool) also keeps `err` as the last error."""
+            m.d.sync += [new_err.eq(err), new_len.eq(length), src.eq(data_src), load.eq(1)]
+            if isinstance(bad, bool):
+                if bad:
+                    m.d.sync += last_error.eq(err)
+            else:
+                with m.If(bad):
+                    m.d.sync += last_error.eq(err)
             m.next = "DONE"
+
+        def respond(err, data="none", nbytes=0):
+            answer(Const(int(err), 8), srcs[data], 1 + nbytes, int(err) != ErrorCode.OK)
 
         with m.FSM():
             with m.State("BOOT"):
@@ -271,16 +278,12 @@ class Link(wiring.Component):
                     m.d.sync += [scan.eq(0), commit.eq(plan["commit"])]
                     m.next = "SCAN"
                 with m.Else():
-                    m.d.sync += [new_err.eq(plan["err"]), new_len.eq(plan["len"]),
-                                 src.eq(plan["src"]), load.eq(1)]
-                    with m.If(plan["bad"]):
-                        m.d.sync += last_error.eq(plan["err"])
+                    answer(plan["err"], plan["src"], plan["len"], plan["bad"])
                     m.d.sync += write.eq(plan["write"])
                     with m.If(plan["start"]):
                         m.d.sync += self.acquiring.eq(1)
                     with m.If(plan["stop"]):
                         m.d.sync += self.acquiring.eq(0)
-                    m.next = "DONE"
             with m.State("BANK_WRITE"):
                 # what is known of offset `off` travels beside its read, RD_LATENCY clocks
                 m.d.comb += rx.rd_offset.eq(off)

@@ -17,7 +17,7 @@ co-simulation bridge drives, :mod:`hdl.tb.bridge`); with an integer the UART of
 
 from __future__ import annotations
 
-from amaranth.hdl import Module, Shape
+from amaranth.hdl import Module
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -83,7 +83,7 @@ class Top(wiring.Component):
         # Frame bytes go from the packetizer to the link through a register slice: the two are
         # placed apart, and the transmitter's `ready` straight into the packetizer FIFO's read
         # enable was the device's worst path (7.9 ns, 6.4 of it routing)
-        m.submodules.frame_slice = fs = register_slice(Shape.cast(FRAME_BYTE).width)
+        m.submodules.frame_slice = fs = register_slice(FRAME_BYTE.size)
         m.d.comb += [
             fs.w_data.eq(pipe.o.payload), fs.w_en.eq(pipe.o.valid), pipe.o.ready.eq(fs.w_rdy),
             link.frame.payload.eq(fs.r_data), link.frame.valid.eq(fs.r_rdy),
