@@ -219,20 +219,16 @@ class Link(wiring.Component):
         load, write = Signal(), Signal()
         m.d.sync += [load.eq(0), write.eq(0)]
 
-        def answer(err, data_src, length, bad):
-            """Set the answer DONE loads (`err`, `data_src`, `length`: values or constants);
-            `bad` (a flag, or a Python bool) also keeps `err` as the last error."""
+        def answer(err, data_src, length):
+            """Set the answer DONE loads (values or constants); the caller keeps a failure's
+            `err` as the last error."""
             m.d.sync += [new_err.eq(err), new_len.eq(length), src.eq(data_src), load.eq(1)]
-            if isinstance(bad, bool):
-                if bad:
-                    m.d.sync += last_error.eq(err)
-            else:
-                with m.If(bad):
-                    m.d.sync += last_error.eq(err)
             m.next = "DONE"
 
         def respond(err, data="none", nbytes=0):
-            answer(Const(int(err), 8), srcs[data], 1 + nbytes, int(err) != ErrorCode.OK)
+            answer(Const(int(err), 8), srcs[data], 1 + nbytes)
+            if int(err) != ErrorCode.OK:
+                m.d.sync += last_error.eq(int(err))
 
         with m.FSM():
             with m.State("BOOT"):
@@ -278,7 +274,9 @@ class Link(wiring.Component):
                     m.d.sync += [scan.eq(0), commit.eq(plan["commit"])]
                     m.next = "SCAN"
                 with m.Else():
-                    answer(plan["err"], plan["src"], plan["len"], plan["bad"])
+                    answer(plan["err"], plan["src"], plan["len"])
+                    with m.If(plan["bad"]):
+                        m.d.sync += last_error.eq(plan["err"])
                     m.d.sync += write.eq(plan["write"])
                     with m.If(plan["start"]):
                         m.d.sync += self.acquiring.eq(1)
