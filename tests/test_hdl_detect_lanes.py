@@ -4,9 +4,9 @@ The multi-lane filter and detector joined, the surface fed back inside the hardw
 smallest ``bin_offset`` the join promises to be exact for (``FilterDetect.min_bin_offset``): every
 y and k of every lane and every result field. Echo-like frames (the detector finds surfaces and
 the template walk runs), short and random frames; plain, with idle insertion and with
-backpressure on both outputs. Two Verilator builds: 3 lanes (odd) of 8 taps, without and with
-the detector's lookahead (each at its own ``min_bin_offset``); with ``ALBCAP_SLOW_TESTS=1`` also
-the measured 16-lane x 8-tap builds.
+backpressure on both outputs. Three Verilator builds: 3 lanes (odd) of 8 taps, without and with
+the detector's lookahead and with the fork slice (each at its own ``min_bin_offset``); with
+``ALBCAP_SLOW_TESTS=1`` also the measured many-lane builds.
 """
 
 from __future__ import annotations
@@ -36,21 +36,22 @@ LANES, TAPS_MAX = 3, 8
 N_ECHO_FRAMES = 4
 
 
-def join(lookahead=0) -> FilterDetect:
-    return FilterDetect(lanes=LANES, taps_max=TAPS_MAX, lookahead=lookahead)
+def join(lookahead=0, fork_slice=False) -> FilterDetect:
+    return FilterDetect(lanes=LANES, taps_max=TAPS_MAX, lookahead=lookahead,
+                        fork_slice=fork_slice)
 
 
 #: The detector's smallest lookahead that hides its threshold wait at 3 lanes (24 beats).
 LOOKAHEAD = detector(LANES).lookahead_hides
 
 
-def case(lookahead=0):
+def case(lookahead=0, fork_slice=False):
     """Frames and registers at the join's bound: the switch sample is the first one the
     fed-back surface can still reach."""
     rng = np.random.default_rng(44)
     bank = workload_bank(4, TAPS_MAX)
-    cfg = Config(bin_offset=join(lookahead).min_bin_offset, bin_len=LANES + 2, out_shift=14,
-                 bottom_rule=2, noise_log2=3, min_sep=4)
+    cfg = Config(bin_offset=join(lookahead, fork_slice).min_bin_offset, bin_len=LANES + 2,
+                 out_shift=14, bottom_rule=2, noise_log2=3, min_sep=4)
     frames = [stitch_config(a, cfg) for a in synthetic_codes(N_ECHO_FRAMES, 500, seed=32)]
     W, P = bank.L - 1, 1 << cfg.noise_log2
     for n in (1, 2, LANES + 1, W + 2 * P + 1, W + 2 * P + 2, 95, 250):
@@ -91,13 +92,28 @@ def test_bound_grows_with_lookahead():
         fd._MustUse__silence = True
 
 
-def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name):
-    """This file's case through ``FilterDetect(lanes, taps_max, lookahead)`` (the module's
-    ``LANES`` and ``TAPS_MAX`` must be ``lanes`` and ``taps_max``), every y and k of every
-    lane checked against the model; the bank, the model's k and its results."""
-    bank, cfg, frames = case(lookahead)
+def test_bound_grows_with_fork_slice():
+    """The fork slice holds up to two beats between the filter and the detector: the surface
+    message may come two beats later, ``2 lanes`` samples."""
+    plain, fs = join(), join(fork_slice=True)
+    assert fs.min_bin_offset == plain.min_bin_offset + 2 * LANES
+    assert (fs.y_latency, fs.frame_gap_clocks) == (plain.y_latency + 1, plain.frame_gap_clocks)
+    big = COMPONENTS["albcap_filter_detect"](lanes=10, taps_max=12, fork_slice=1)
+    assert big.fork_slice and big.min_bin_offset == FilterDetect(
+        lanes=10, taps_max=12).min_bin_offset + 20
+    for fd in (plain, fs, big):
+        fd._MustUse__silence = True
+
+
+def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=False):
+    """This file's case through ``FilterDetect(lanes, taps_max, lookahead, fork_slice)`` (the
+    module's ``LANES`` and ``TAPS_MAX`` must be ``lanes`` and ``taps_max``), every y and k of
+    every lane checked against the model; the bank, the model's k and its results."""
+    bank, cfg, frames = case(lookahead, fork_slice)
     source, sink = TRAFFIC[traffic_name]
-    res = run(Design(FilterDetect, lanes=lanes, taps_max=taps_max, lookahead=lookahead),
+    params = {"fork_slice": True} if fork_slice else {}
+    res = run(Design(FilterDetect, lanes=lanes, taps_max=taps_max, lookahead=lookahead,
+                     **params),
               tmp_path,
               sources={"coef": coef_source(bank), "i": sample_source(frames, source)},
               sinks={"y": Sink(filter_out_layout(lanes), sink),
@@ -105,7 +121,8 @@ def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name):
               static={**cfg_ports(cfg, "filter", "cfg_filter"),
                       **cfg_ports(cfg, "peak", "cfg_peak"),
                       "templates": bank.K, "taps": bank.L},
-              label=f"filter_detect_{lanes}x{taps_max}_la{lookahead}-{traffic_name}")
+              label=f"filter_detect_{lanes}x{taps_max}_la{lookahead}{'_fs' * fork_slice}-"
+                    f"{traffic_name}")
     assert not res.timeout, f"timed out after {res.clocks} clocks"
     assert res.violations == {"y": 0, "o": 0}
     y, k, results = expected(bank, cfg, frames)
@@ -124,6 +141,14 @@ def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name):
 @pytest.mark.parametrize("lookahead", [0, LOOKAHEAD])
 def test_verilator(tmp_path, lookahead, traffic_name):
     bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, lookahead, traffic_name)
+    assert k.max() == bank.K - 1, "the template walk should reach the last template"
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+def test_verilator_fork_slice(tmp_path, traffic_name):
+    """The many-lane join with the register slice before its fork (the filter -> detector hop
+    was the 10 x 12 join's worst route, ``docs/fpga.md``), at its own ``min_bin_offset``."""
+    bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, 0, traffic_name, fork_slice=True)
     assert k.max() == bank.K - 1, "the template walk should reach the last template"
 
 
