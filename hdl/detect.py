@@ -83,14 +83,18 @@ class FilterDetect(wiring.Component):
         4..1024): from its ``lookahead_hides`` on (20 at one lane, 28 at 9 to 16 lanes)
         frames of at least the detector's ``result_latency`` beats stream back to back with
         no gap; it raises :attr:`min_bin_offset` and the result's latency.
-    fork_slice : bool
-        A register slice (:class:`~hdl._primitives.RegisterSlice`) between the filter's output
-        and the fork to ``y`` and the detector, so that the detector's input decision reads
-        registers, not the filter's output buffer through the fork (the pipeline's worst
-        path on two nextpnr seeds, ``docs/fpga.md`` run 46). It delays the fed-back surface
-        by up to two beats (the slice's two entries): :attr:`min_bin_offset` grows by ``2
-        lanes``, to 24 at one lane, the register's floor. Off by default (every figure
-        of the many-lane joins is without it); the pipeline's join has it.
+    fork_slice : bool or int
+        Register slices (:class:`~hdl._primitives.RegisterSlice`, 0, 1 (``True``) or 2 in
+        series) between the filter's output and the fork to ``y`` and the detector, so that
+        the detector's input decision reads registers, not the filter's output buffer through
+        the fork (the pipeline's worst path on two nextpnr seeds, ``docs/fpga.md`` run 46;
+        the 10 x 12 join's, twenty-sixth session). Each delays the fed-back surface by up to
+        two beats (its two entries): :attr:`min_bin_offset` grows by ``2 lanes`` a slice, to
+        24 at one lane with one, the register's floor. A second slice gives the placer a
+        register to put beside the detector when the first sits beside the filter (the
+        10 x 12 join with one: the slice -> the detector's input decision, 3.9 ns of routing
+        across the part). Off by default (a many-lane join's figure is without it unless its
+        key names it); the pipeline's join has one.
 
     Attributes
     ----------
@@ -140,10 +144,16 @@ class FilterDetect(wiring.Component):
         self._detect = PeakDetect(lanes=lanes, lookahead=lookahead)
         self._detect._MustUse__silence = True
         self.lanes, self.taps_max, self.lookahead = lanes, taps_max, lookahead
-        self.fork_slice = bool(fork_slice)
-        # the fork slice holds up to two beats between the filter and the detector: with its
+        if isinstance(fork_slice, bool):
+            fork_slice = int(fork_slice)
+        if not (isinstance(fork_slice, int) and 0 <= fork_slice <= 2):
+            raise ValueError(f"fork_slice must be 0, 1 or 2 (register slices before the "
+                             f"fork; True is 1), not {fork_slice!r}")
+        #: register slices between the filter's output and the fork
+        self.fork_slice = fork_slice
+        # each slice holds up to two beats between the filter and the detector: with its
         # output register and its skid full, the filter may hold its CAPACITY more
-        slice_beats = 2 if self.fork_slice else 0
+        slice_beats = 2 * fork_slice
         #: smallest ``bin_offset`` for which the fed-back surface always arrives in time
         self.min_bin_offset = self._filter.max_unsurfaced(
             self._detect.surface_latency + slice_beats) + 1
@@ -151,7 +161,7 @@ class FilterDetect(wiring.Component):
         #: fewest clocks from a beat's acceptance to its ``y`` (what travels beside the join
         #: in the pipeline is sized and checked by them)
         self.y_capacity = CAPACITY + slice_beats
-        self.y_latency = self._filter.latency + int(self.fork_slice)
+        self.y_latency = self._filter.latency + fork_slice
         #: clocks a frame costs beyond its beats (the detector's wait for its threshold)
         self.frame_gap_clocks = self._detect.threshold_bubble
         super().__init__({**join_ports(lanes),
@@ -170,13 +180,16 @@ class FilterDetect(wiring.Component):
         m.d.comb += [f.templates.eq(self.templates), f.taps.eq(self.taps),
                      p.taps.eq(self.taps)]
         src = f.o
-        if self.fork_slice:
-            sl = m.submodules.fork_slice = RegisterSlice(len(f.o.payload.as_value()))
-            src = stream.Signature(f.o.payload.shape()).create()
-            m.d.comb += [sl.w_data.eq(f.o.payload), sl.w_en.eq(f.o.valid),
-                         f.o.ready.eq(sl.w_rdy),
-                         src.payload.eq(sl.r_data), src.valid.eq(sl.r_rdy),
-                         sl.r_en.eq(src.ready)]
+        for n in range(self.fork_slice):
+            # (the first keeps the name of the time it was the only one)
+            sl = RegisterSlice(len(f.o.payload.as_value()))
+            m.submodules["fork_slice" if n == 0 else f"fork_slice{n}"] = sl
+            nxt = stream.Signature(f.o.payload.shape()).create()
+            m.d.comb += [sl.w_data.eq(src.payload), sl.w_en.eq(src.valid),
+                         src.ready.eq(sl.w_rdy),
+                         nxt.payload.eq(sl.r_data), nxt.valid.eq(sl.r_rdy),
+                         sl.r_en.eq(nxt.ready)]
+            src = nxt
         # fork: each consumer takes the beat once (`took_y`, `took_p`: it has, and the other
         # has not yet), and the beat leaves when both have taken it. So a consumer's valid is
         # no function of the other's ready. (As `y.valid = src.valid & p.i.ready` and back,

@@ -12,6 +12,7 @@ the detector's lookahead and with the fork slice (each at its own ``min_bin_offs
 from __future__ import annotations
 
 import os
+import re
 import sys
 from types import SimpleNamespace
 
@@ -95,14 +96,21 @@ def test_bound_grows_with_lookahead():
 def test_bound_grows_with_fork_slice():
     """The fork slice holds up to two beats between the filter and the detector: the surface
     message may come two beats later, ``2 lanes`` samples."""
-    plain, fs = join(), join(fork_slice=True)
+    plain, fs, fs2 = join(), join(fork_slice=True), join(fork_slice=2)
     assert fs.min_bin_offset == plain.min_bin_offset + 2 * LANES
+    assert fs2.min_bin_offset == plain.min_bin_offset + 4 * LANES
     assert (fs.y_latency, fs.frame_gap_clocks) == (plain.y_latency + 1, plain.frame_gap_clocks)
+    assert fs2.y_latency == plain.y_latency + 2
     big = COMPONENTS["albcap_filter_detect"](lanes=10, taps_max=12, fork_slice=1)
     assert big.fork_slice and big.min_bin_offset == FilterDetect(
         lanes=10, taps_max=12).min_bin_offset + 20
-    for fd in (plain, fs, big):
+    for fd in (plain, fs, fs2, big):
         fd._MustUse__silence = True
+    for bad in (3, -1, 1.0):
+        with pytest.raises(ValueError, match=rf"^fork_slice must be 0, 1 or 2 \(register "
+                                             rf"slices before the fork; True is 1\), not "
+                                             rf"{re.escape(repr(bad))}$"):
+            join(fork_slice=bad)
 
 
 def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=False):
@@ -111,7 +119,7 @@ def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=Fals
     every lane checked against the model; the bank, the model's k and its results."""
     bank, cfg, frames = case(lookahead, fork_slice)
     source, sink = TRAFFIC[traffic_name]
-    params = {"fork_slice": True} if fork_slice else {}
+    params = {"fork_slice": fork_slice} if fork_slice else {}
     res = run(Design(FilterDetect, lanes=lanes, taps_max=taps_max, lookahead=lookahead,
                      **params),
               tmp_path,
@@ -145,10 +153,12 @@ def test_verilator(tmp_path, lookahead, traffic_name):
 
 
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
-def test_verilator_fork_slice(tmp_path, traffic_name):
-    """The many-lane join with the register slice before its fork (the filter -> detector hop
-    was the 10 x 12 join's worst route, ``docs/fpga.md``), at its own ``min_bin_offset``."""
-    bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, 0, traffic_name, fork_slice=True)
+@pytest.mark.parametrize("slices", [1, 2])
+def test_verilator_fork_slice(tmp_path, slices, traffic_name):
+    """The many-lane join with one or two register slices before its fork (the filter ->
+    detector hop was the 10 x 12 join's worst route, ``docs/fpga.md``), at its own
+    ``min_bin_offset``."""
+    bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, 0, traffic_name, fork_slice=slices)
     assert k.max() == bank.K - 1, "the template walk should reach the last template"
 
 
