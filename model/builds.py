@@ -67,7 +67,9 @@ def measured_builds(figures: dict | None) -> list[dict]:
     list of dict
         ``key``, ``lanes``, ``engines`` (1 but for an interleaved build), ``taps_max``,
         ``fmax_mhz``, ``samples_per_s``, ``min_bin_offset``
-        [samples], ``frame_gap_clocks``, ``dsps``, ``luts``.
+        [samples], ``frame_gap_clocks``, ``dsps``, ``luts``, ``static`` (``"registers"``
+        when the register groups were timed, as in the device; else ``"pins"``) and
+        ``fork_slice`` (register slices before the join's fork).
 
     Raises
     ------
@@ -89,16 +91,26 @@ def measured_builds(figures: dict | None) -> list[dict]:
                     "fmax_mhz": f["fmax_mhz"], "samples_per_s": f["samples_per_s"],
                     "min_bin_offset": int(f["min_bin_offset"]),
                     "frame_gap_clocks": int(f.get("frame_gap_clocks", 0)),
-                    "dsps": f.get("dsps"), "luts": f.get("luts")})
+                    "dsps": f.get("dsps"), "luts": f.get("luts"),
+                    "static": f.get("static", "pins"),
+                    "fork_slice": int(f.get("params", {}).get("fork_slice", 0))})
     return sorted(out, key=lambda b: -b["samples_per_s"])
 
 
-def build_label(build: dict) -> str:
-    """``2 lanes x 64`` (a join of ``lanes``), ``10 lanes, 10 engines x 8`` (interleaved)."""
+def build_label(build: dict, unit: str = "") -> str:
+    """``2 lanes x 64`` (a join of ``lanes``), ``10 lanes, 10 engines x 8`` (interleaved);
+    ``unit`` after the taps (``" taps"``), then what sets the build apart from the others of
+    its size: ``(registers timed, 1 fork slice)``."""
     lanes = f"{build['lanes']} lane{'s' if build['lanes'] != 1 else ''}"
     if build.get("engines", 1) > 1:
         lanes += f", {build['engines']} engines"
-    return f"{lanes} x {build['taps_max']}"
+    notes = []
+    if build.get("static", "pins") != "pins":
+        notes.append("registers timed")
+    if build.get("fork_slice", 0):
+        n = build["fork_slice"]
+        notes.append(f"{n} fork slice{'s' if n != 1 else ''}")
+    return f"{lanes} x {build['taps_max']}{unit}" + (f" ({', '.join(notes)})" if notes else "")
 
 
 def build_spec(build: dict, name: str = METHOD) -> MethodSpec:

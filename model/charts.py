@@ -315,7 +315,7 @@ def builds_chart(builds: dict, acc: dict | None, out_dir: Path) -> list[Path]:
             us = v["fpga"]["us_per_waveform"]
             ax.scatter(us, r * 100, color=colour, marker="s", zorder=3)
             det = v["method"]["summary"]["detection_rate"]
-            ax.annotate(f"{build_label(b)} taps, {b['fmax_mhz']:g} MHz ({det:.0%})",
+            ax.annotate(f"{build_label(b, ' taps')}, {b['fmax_mhz']:g} MHz ({det:.0%})",
                         (us, r * 100), xytext=(5, 4), textcoords="offset points", fontsize=7,
                         color=colour)
         methods = None

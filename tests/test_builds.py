@@ -207,7 +207,18 @@ class TestInterleavedBuild:
         assert (b[0]["engines"], b[0]["min_bin_offset"]) == (10, 17)
         assert build_label(b[0]) == "10 lanes, 10 engines x 8"
         assert build_label(b[1]) == "8 lanes x 16"
+        assert build_label(b[1], " taps") == "8 lanes x 16 taps"
         assert build_spec(b[0]).name == "adaptive_mf[engines=10,lanes=10,taps_max=8]"
+
+    def test_label_names_timed_registers_and_slices(self):
+        """Two builds of one size apart: the one timed as in the device, with its slices."""
+        fig = {**self.FIG, "component": "albcap_filter_detect", "engines": 1,
+               "static": "registers", "params": {"lanes": 10, "taps_max": 8, "fork_slice": 2}}
+        b = measured_builds({"figures": {"x": fig}})[0]
+        assert (b["static"], b["fork_slice"]) == ("registers", 2)
+        assert build_label(b, " taps") == "10 lanes x 8 taps (registers timed, 2 fork slices)"
+        one = measured_builds({"figures": {"x": {**fig, "params": {"fork_slice": 1}}}})[0]
+        assert build_label(one) == "10 lanes x 8 (registers timed, 1 fork slice)"
 
     def test_time_is_the_engines_rate(self):
         t = accuracy.fpga_time(self.KEY, self.FIG, 725.0)
