@@ -164,17 +164,19 @@ def test_verilator_fork_slice(tmp_path, slices, traffic_name):
 
 #: The measured many-lane builds (``docs/figures/fpga.json``): their Verilator builds take
 #: minutes each, so they run only when ``ALBCAP_SLOW_TESTS=1`` asks.
-BIG_BUILDS = [(16, 8, 0, "idle"), (16, 8, 28, "backpressure"), (4, 32, 0, "backpressure"),
-              (8, 16, 0, "idle"), (10, 12, 0, "backpressure")]
+BIG_BUILDS = [(16, 8, 0, "idle", 0), (16, 8, 28, "backpressure", 0),
+              (4, 32, 0, "backpressure", 0), (8, 16, 0, "idle", 0),
+              (10, 12, 0, "backpressure", 0), (10, 12, 0, "idle", 1), (10, 12, 0, "plain", 2)]
 
 
 @pytest.mark.skipif(os.environ.get("ALBCAP_SLOW_TESTS") != "1",
                     reason="minutes per build; ALBCAP_SLOW_TESTS=1 runs it")
-@pytest.mark.parametrize(("lanes", "taps_max", "lookahead", "traffic_name"), BIG_BUILDS)
+@pytest.mark.parametrize(("lanes", "taps_max", "lookahead", "traffic_name", "fork_slice"),
+                         BIG_BUILDS)
 def test_verilator_measured_build(tmp_path, monkeypatch, lanes, taps_max, lookahead,
-                                  traffic_name):
+                                  traffic_name, fork_slice):
     """A build whose clock the builds study uses, bit-exact on this file's case (at 16 lanes
     with the lookahead, ``min_bin_offset`` lies past the 500-sample echo frames: no switch)."""
     monkeypatch.setattr(sys.modules[__name__], "LANES", lanes)
     monkeypatch.setattr(sys.modules[__name__], "TAPS_MAX", taps_max)
-    run_join(tmp_path, lanes, taps_max, lookahead, traffic_name)
+    run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=fork_slice)
