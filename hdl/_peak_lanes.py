@@ -123,6 +123,9 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
         From accepting the frame's last beat to its result beat being valid, when the beat
         does not wait: D1 to C is ``4 levels + 11`` clocks, then the divider's three loading
         clocks, its steps, the clock taking the last quotient bit and the payload register.
+        (A partial last beat of ``c`` samples at ``base`` with ``base + c < W + 2P + 2 <=
+        base + lanes``, taken from the port straight into D1, waits one clock there: the
+        port's beat goes on a full beat's flag.)
     bubble
         The most clocks a beat waits in ``D1`` for its frame's threshold, counted as extra
         latency: the flag and mask stages, two trees of ``levels`` clocks, the sum, ``mu``,
@@ -311,13 +314,25 @@ def elaborate(top, platform):
         stays = Signal(name="busy_stays")  # busy after this clock, if D1's beat stays
         m.d.comb += stays.eq(busy & ~(top.o.valid & top.o.ready))
 
-        def may_go(b, loaded, busy_next: bool):
-            ok = ~b.needs | (tag_eq & (~b.beat.first if loaded else 1))
+        # The port's beat goes on the flag of a full beat (count L), not on its own: a full
+        # beat's is one of two registers, where `inb.needs` is chosen by the beat's count (an
+        # 11-way mux at ten lanes), which put the port's count 6 cells and 10.09 ns from go,
+        # the worst path of the 10 x 12 join with two fork slices (99.1 MHz). Only a frame's
+        # last beat may be partial, and the flag only grows with the count, so the full
+        # beat's flag is the beat's own or a 1 where it is 0: then no beat of the frame needs
+        # the threshold, none is held for it (tag_eq is low) and the beat stays one clock in
+        # D1, to go on its own flag (`h1.needs`, exact) in the next. Results are unchanged;
+        # such a frame's result comes one clock later (tests/test_hdl_peak_detect.py).
+        port_needs = Mux(d.first, first_needs[L], next_needs[L])
+
+        def may_go(b, loaded, busy_next: bool, needs=None):
+            needs = b.needs if needs is None else needs
+            ok = ~needs | (tag_eq & (~b.beat.first if loaded else 1))
             return ok & ~b.beat.last if busy_next else ok
 
         def taken(busy_next: bool):  # the beat D1 takes now (the skid's, else the port's)
             return Mux(s_valid, may_go(skid, True, busy_next),
-                       top.i.valid & may_go(inb, True, busy_next))
+                       top.i.valid & may_go(inb, True, busy_next, port_needs))
 
         def kept(busy_next: bool):  # D1's own beat, or the one it takes if it is empty
             return Mux(~d1_valid, taken(busy_next), d1_valid & may_go(h1, False, busy_next))

@@ -218,7 +218,8 @@ def check_latencies(res, st, results, dut: PeakDetect):
     """
     lanes = dut.lanes
     # a beat reaching W + 2P + 2 samples waits for the threshold
-    need_at = [0 if g is None else g.L + 1 + (2 << g.cfg.noise_log2) for g in st.group]
+    need_at = np.array([0 if g is None else g.L + 1 + (2 << g.cfg.noise_log2)
+                        for g in st.group])
     beats = np.array([-(-len(y) // lanes) for y in st.ys])
     starts = np.concatenate([[0], np.cumsum(beats)[:-1]])
     accepted = res.sources["i"]["clock"]
@@ -229,11 +230,16 @@ def check_latencies(res, st, results, dut: PeakDetect):
         return any(lo < need_at[f] <= min(lo + lanes, len(st.ys[f]))
                    for lo in (b * lanes, (b - 1) * lanes) if lo >= 0)
 
+    # a partial last beat whose full width would reach W + 2P + 2 while it does not stays one
+    # clock in D1 (the port's beat goes on a full beat's flag: hdl/_peak_lanes.py)
+    lens = np.array([len(y) for y in st.ys])
+    late = (lens < need_at) & (need_at <= beats * lanes)
     lat = out - accepted[starts + beats - 1]
     free = [f for f in range(len(st.ys)) if not waits(f, beats[f] - 1)
             and (f == 0 or accepted[starts[f] + beats[f] - 1] > out[f - 1])]
     assert len(free) > len(st.ys) // 2
-    assert np.all(lat[free] == dut.result_latency), lat[free]
+    assert lanes == 1 or late[free].any()  # (lane frames of W + 2P + 1 samples are)
+    assert np.all(lat[free] == dut.result_latency + late[free]), lat[free]
     assert np.all(lat >= dut.result_latency)
     surf = res.sinks["surface"]["clock"]
     frames = [f for f, r in enumerate(results) if r.surface.found]
