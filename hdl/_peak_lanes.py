@@ -325,17 +325,17 @@ def elaborate(top, platform):
         # such a frame's result comes one clock later (tests/test_hdl_peak_detect.py).
         port_needs = Mux(d.first, first_needs[L], next_needs[L])
 
-        def may_go(b, loaded, busy_next: bool, needs=None):
-            needs = b.needs if needs is None else needs
+        def may_go(b, needs, loaded, busy_next: bool):
             ok = ~needs | (tag_eq & (~b.beat.first if loaded else 1))
             return ok & ~b.beat.last if busy_next else ok
 
         def taken(busy_next: bool):  # the beat D1 takes now (the skid's, else the port's)
-            return Mux(s_valid, may_go(skid, True, busy_next),
-                       top.i.valid & may_go(inb, True, busy_next, port_needs))
+            return Mux(s_valid, may_go(skid, skid.needs, True, busy_next),
+                       top.i.valid & may_go(inb, port_needs, True, busy_next))
 
         def kept(busy_next: bool):  # D1's own beat, or the one it takes if it is empty
-            return Mux(~d1_valid, taken(busy_next), d1_valid & may_go(h1, False, busy_next))
+            return Mux(~d1_valid, taken(busy_next),
+                       d1_valid & may_go(h1, h1.needs, False, busy_next))
 
         if_goes = Mux(d1.last | stays, taken(True), taken(False))
         if_stays = Mux(stays, kept(True), kept(False))
