@@ -48,11 +48,11 @@ from .matched_filter import (
 __all__ = ["elaborate", "latency"]
 
 
-def latency(taps_max: int) -> int:
-    """Clocks from an accepted beat to its output: window and templates (1), the operands in
-    fabric (1), multiplier input and product (2), the adder tree (``ceil(log2 taps_max)``),
-    shift in two steps and round (3)."""
-    return 7 + (taps_max - 1).bit_length()
+def latency(taps_max: int, window_reg: bool = False) -> int:
+    """Clocks from an accepted beat to its output: window and templates (1), the window in its
+    registers (1, with ``window_reg`` only), the operands in fabric (1), multiplier input and
+    product (2), the adder tree (``ceil(log2 taps_max)``), shift in two steps and round (3)."""
+    return 7 + int(window_reg) + (taps_max - 1).bit_length()
 
 
 def _tree(m: Module, terms: list, name: str) -> list[list]:
@@ -92,7 +92,9 @@ def elaborate(mf, platform) -> Module:
     # memories of 12 lanes x 8 taps shared one write bus, and the 12 x 8 join's worst path was
     # a route of 12.7 ns into one of their write ports (18.0 ns in all, 55.5 MHz).
     groups = min(K_MAX, -(-T // 4))
-    wlink, whold = _coef_chain(m, mf.coef, P * groups, read_after=1)
+    # (with window_reg the template copies load a clock later, as the operands do)
+    wr = int(mf.window_reg)
+    wlink, whold = _coef_chain(m, mf.coef, P * groups, read_after=1 + wr)
     accept, _take, accept_dl = _flow_control(m, mf, capacity, hold_nx=whold)
 
     # ---- frame state ----
@@ -227,7 +229,10 @@ def elaborate(mf, platform) -> Module:
     # the window's choice starts at registers: made from the port, the compares of `taps` ran
     # on into the window's mux, seven cells (a path of the device, whose `taps` is a register
     # of the link; Yosys's netlist of the 10 x 12 join, estimated at 10 ns). The stage-2
-    # operands read the window as it is placed (`wn`), so the latency is unchanged ----
+    # operands read the window as it is placed (`wn`), so the latency is unchanged; with
+    # window_reg the stage-3 operands read it from its registers (`w`, which holds the
+    # window of the beat of stage 1 from the edge after, until the next beat's shift), with
+    # `mask` and the template copies a clock later to match ----
     L = mf.taps
     n_w = T + P - 1
     x1 = [Signal(STITCHED, name=f"x1_{q}") for q in range(P)]
@@ -257,10 +262,19 @@ def elaborate(mf, platform) -> Module:
     # template into a RegisteredMultiplier. The lane's template register is copied per group
     # of 4 taps (copy g holds k ^ g, its memories store h[k][j] at k ^ g, so the copies are
     # not merged), letting each memory sit by its DSP as in the one-lane design ----
+    if wr:
+        # the window from its registers; `mask` and the lane's template a clock later with it
+        operand_w = w
+        mask_op = Signal(T)
+        m.d.sync += mask_op.eq(mask)
+        k_src = [Signal(_K_SHAPE, name=f"k_sel1_{p}") for p in range(P)]
+        m.d.sync += [k_src[p].eq(k_sel[p]) for p in range(P)]
+    else:
+        operand_w, mask_op, k_src = wn, mask, k_sel
     accs = []
     for p in range(P):
         k_copy = [Signal(_K_SHAPE, name=f"k{p}_copy{g}") for g in range(groups)]
-        m.d.sync += [k_copy[g].eq(k_sel[p] ^ g) for g in range(groups)]
+        m.d.sync += [k_copy[g].eq(k_src[p] ^ g) for g in range(groups)]
         prods = []
         for j in range(T):
             g = j * groups // T
@@ -283,12 +297,12 @@ def elaborate(mf, platform) -> Module:
             # different lanes, spread over the device's DSP rows)
             a_pre = Signal(STITCHED, name=f"a{p}_{j}")
             b_pre = Signal(signed(COEF_WIDTH), name=f"b{p}_{j}")
-            m.d.sync += [a_pre.eq(Mux(mask[j], wn[p + j], 0)), b_pre.eq(rp.data)]
+            m.d.sync += [a_pre.eq(Mux(mask_op[j], operand_w[p + j], 0)), b_pre.eq(rp.data)]
             m.d.comb += [mul.a.eq(a_pre), mul.b.eq(b_pre)]
             prods.append(mul.p)
         levels = _tree(m, prods, f"l{p}")
         accs.append(levels[-1][0] if levels else prods[0])
-    assert len(levels) == lat - 7
+    assert len(levels) == lat - 7 - wr
 
     # ---- stages lat-2 to lat: shift (by the multiple of 8, then the rest, as the one-lane
     # design: a 32-way shift of the wide sum is five levels of muxes), round, saturate ----

@@ -95,6 +95,11 @@ class FilterDetect(wiring.Component):
         10 x 12 join with one: the slice -> the detector's input decision, 3.9 ns of routing
         across the part). Off by default (a many-lane join's figure is without it unless its
         key names it); the pipeline's join has one.
+    window_reg : bool
+        The filter's multipliers read its window from registers
+        (:class:`~hdl.matched_filter.MatchedFilter` ``window_reg``; not with the one-lane
+        ``L_MAX``-tap filter): a clock more filter latency, so :attr:`min_bin_offset` grows by
+        ``lanes``. Off by default, as ``fork_slice``.
 
     Attributes
     ----------
@@ -134,12 +139,15 @@ class FilterDetect(wiring.Component):
     """
 
     def __init__(self, lanes: int = 1, taps_max: int = L_MAX, lookahead: int = 0,
-                 fork_slice: bool = False):
+                 fork_slice: bool = False, window_reg: bool = False):
         # the parts are made here so that their latencies give the bound before elaboration
         # (private parts: an unused join warns for itself, they need not warn as well)
         # the detector's messages come from samples the filter has passed: never for a newer
         # frame, so the filter's surface.ready is 1 (MatchedFilter's surface_ahead)
-        self._filter = MatchedFilter(lanes=lanes, taps_max=taps_max, surface_ahead=False)
+        self._filter = MatchedFilter(lanes=lanes, taps_max=taps_max, surface_ahead=False,
+                                     window_reg=window_reg)
+        #: the filter's window read from its registers (``MatchedFilter.window_reg``)
+        self.window_reg = self._filter.window_reg
         self._filter._MustUse__silence = True
         self._detect = PeakDetect(lanes=lanes, lookahead=lookahead)
         self._detect._MustUse__silence = True

@@ -402,6 +402,16 @@ class MatchedFilter(wiring.Component):
         from the tag compare into the sender's message register (the interleaved builds'
         worst path, 9.4 ns, ``docs/fpga.md``). A newer message would be lost: taken and never
         used.
+    window_reg : bool
+        The lanes design only (an error with the one-lane ``L_MAX``-tap design, whose delay
+        line is registers already): the multipliers' operands read the window from its
+        registers, a clock after it is placed, rather than as it is placed (default False).
+        The window's placement is a mux of ``lanes + 1`` terms per position, chosen by flags of
+        ``taps`` that fan out over every lane, and each position feeds up to ``lanes``
+        operand registers beside DSP blocks spread over the part: at 10 lanes x 12 taps that
+        placement and its route were one path (``at5`` -> the window -> ``a0_9``, 11.5 ns,
+        ``docs/fpga.md``). With it the two are cut apart, at a clock more ``latency``
+        (the template copies load a clock later to keep the operands paired).
 
     With the defaults this is the one-lane design described in the Notes; any other choice is
     elaborated by :mod:`hdl._filter_lanes` (same ports and rules, these differences):
@@ -413,9 +423,9 @@ class MatchedFilter(wiring.Component):
       are ignored.
     * ``bin_len >= lanes`` is required (the template changes at most once per beat; a shorter
       bin gives wrong templates, not a hang).
-    * Latency ``latency = 6 + ceil(log2 taps_max)`` clocks (10 at 16 taps, 11 at 32, 12 at
-      64): the window and templates, the operands, the multiplier's two registers, the adder
-      tree, shift and round.
+    * Latency ``latency = 7 + ceil(log2 taps_max)`` clocks (11 at 16 taps, 12 at 32, 13 at
+      64; one more with ``window_reg``): the window and templates, the operands, the
+      multiplier's two registers, the adder tree, shift and round.
       One beat per clock sustained; the output buffer holds ``latency + 1`` beats.
     * A surface taken at one edge acts on beats accepted :data:`SURFACE_APPLY` = 2 edges later,
       as one lane; its switch sample ``s + bin_offset`` may sit in any lane of such a beat. A
@@ -426,7 +436,7 @@ class MatchedFilter(wiring.Component):
 
     Attributes
     ----------
-    lanes, taps_max : int
+    lanes, taps_max, window_reg : int, int, bool
         As given.
     latency : int
         Clocks from an accepted beat to its output with no backpressure (:data:`LATENCY` for
@@ -491,7 +501,8 @@ class MatchedFilter(wiring.Component):
     sample counter.
     """
 
-    def __init__(self, lanes: int = 1, taps_max: int = L_MAX, surface_ahead: bool = True):
+    def __init__(self, lanes: int = 1, taps_max: int = L_MAX, surface_ahead: bool = True,
+                 window_reg: bool = False):
         if not isinstance(lanes, int) or isinstance(lanes, bool) or lanes < 1:
             raise ValueError(f"lanes must be an integer of at least 1, not {lanes!r}")
         if (not isinstance(taps_max, int) or isinstance(taps_max, bool)
@@ -499,14 +510,26 @@ class MatchedFilter(wiring.Component):
             raise ValueError(f"taps_max must be an integer in 1..{L_MAX}, not {taps_max!r}")
         if not isinstance(surface_ahead, bool):
             raise ValueError(f"surface_ahead must be True or False, not {surface_ahead!r}")
+        if isinstance(window_reg, int) and not isinstance(window_reg, bool) \
+                and window_reg in (0, 1):
+            window_reg = bool(window_reg)
+        if not isinstance(window_reg, bool):
+            raise ValueError(f"window_reg must be True or False (or 1 or 0), "
+                             f"not {window_reg!r}")
         self.lanes = lanes
         self.taps_max = taps_max
         self.surface_ahead = surface_ahead
+        if window_reg and self._one_lane:
+            raise ValueError(f"window_reg applies to the lanes design (lanes > 1 or taps_max "
+                             f"< {L_MAX}); the one-lane {L_MAX}-tap design's delay line is "
+                             f"already registers (lanes={lanes}, taps_max={taps_max})")
+        #: the lanes design's window read from its registers, a clock later
+        self.window_reg = window_reg
         if self._one_lane:
             self.latency = LATENCY
         else:
             from . import _filter_lanes
-            self.latency = _filter_lanes.latency(taps_max)
+            self.latency = _filter_lanes.latency(taps_max, window_reg)
         super().__init__({
             "i": In(stream.Signature(filter_in_layout(lanes))),
             "o": Out(stream.Signature(filter_out_layout(lanes))),

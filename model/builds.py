@@ -68,8 +68,9 @@ def measured_builds(figures: dict | None) -> list[dict]:
         ``key``, ``lanes``, ``engines`` (1 but for an interleaved build), ``taps_max``,
         ``fmax_mhz``, ``samples_per_s``, ``min_bin_offset``
         [samples], ``frame_gap_clocks``, ``dsps``, ``luts``, ``static`` (``"registers"``
-        when the register groups were timed, as in the device; else ``"pins"``) and
-        ``fork_slice`` (register slices before the join's fork).
+        when the register groups were timed, as in the device; else ``"pins"``),
+        ``fork_slice`` (register slices before the join's fork) and ``window_reg`` (the
+        filter's window read from its registers).
 
     Raises
     ------
@@ -93,14 +94,15 @@ def measured_builds(figures: dict | None) -> list[dict]:
                     "frame_gap_clocks": int(f.get("frame_gap_clocks", 0)),
                     "dsps": f.get("dsps"), "luts": f.get("luts"),
                     "static": f.get("static", "pins"),
-                    "fork_slice": int(f.get("params", {}).get("fork_slice", 0))})
+                    "fork_slice": int(f.get("params", {}).get("fork_slice", 0)),
+                    "window_reg": bool(f.get("params", {}).get("window_reg", False))})
     return sorted(out, key=lambda b: -b["samples_per_s"])
 
 
 def build_label(build: dict, unit: str = "") -> str:
     """``2 lanes x 64`` (a join of ``lanes``), ``10 lanes, 10 engines x 8`` (interleaved);
     ``unit`` after the taps (``" taps"``), then what sets the build apart from the others of
-    its size: ``(registers timed, 1 fork slice)``."""
+    its size: ``(registers timed, 1 fork slice, window registered)``."""
     lanes = f"{build['lanes']} lane{'s' if build['lanes'] != 1 else ''}"
     if build.get("engines", 1) > 1:
         lanes += f", {build['engines']} engines"
@@ -110,6 +112,8 @@ def build_label(build: dict, unit: str = "") -> str:
     if build.get("fork_slice", 0):
         n = build["fork_slice"]
         notes.append(f"{n} fork slice{'s' if n != 1 else ''}")
+    if build.get("window_reg", False):
+        notes.append("window registered")
     return f"{lanes} x {build['taps_max']}{unit}" + (f" ({', '.join(notes)})" if notes else "")
 
 

@@ -219,6 +219,12 @@ class TestInterleavedBuild:
         assert build_label(b, " taps") == "10 lanes x 8 taps (registers timed, 2 fork slices)"
         one = measured_builds({"figures": {"x": {**fig, "params": {"fork_slice": 1}}}})[0]
         assert build_label(one) == "10 lanes x 8 (registers timed, 1 fork slice)"
+        assert b["window_reg"] is False and one["window_reg"] is False
+        wr = measured_builds({"figures": {"x": {**fig, "params": {"fork_slice": 2,
+                                                                   "window_reg": 1}}}})[0]
+        assert wr["window_reg"] is True
+        assert build_label(wr) == ("10 lanes x 8 (registers timed, 2 fork slices, "
+                                   "window registered)")
 
     def test_time_is_the_engines_rate(self):
         t = accuracy.fpga_time(self.KEY, self.FIG, 725.0)

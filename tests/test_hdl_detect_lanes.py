@@ -4,9 +4,10 @@ The multi-lane filter and detector joined, the surface fed back inside the hardw
 smallest ``bin_offset`` the join promises to be exact for (``FilterDetect.min_bin_offset``): every
 y and k of every lane and every result field. Echo-like frames (the detector finds surfaces and
 the template walk runs), short and random frames; plain, with idle insertion and with
-backpressure on both outputs. Three Verilator builds: 3 lanes (odd) of 8 taps, without and with
-the detector's lookahead and with the fork slice (each at its own ``min_bin_offset``); with
-``ALBCAP_SLOW_TESTS=1`` also the measured many-lane builds.
+backpressure on both outputs. Verilator builds of 3 lanes (odd) of 8 taps: without and with
+the detector's lookahead, with one and two fork slices, and with two and the filter's window in
+registers (``window_reg``), each at its own ``min_bin_offset``; with ``ALBCAP_SLOW_TESTS=1`` also
+the measured many-lane builds.
 """
 
 from __future__ import annotations
@@ -37,21 +38,22 @@ LANES, TAPS_MAX = 3, 8
 N_ECHO_FRAMES = 4
 
 
-def join(lookahead=0, fork_slice=False) -> FilterDetect:
+def join(lookahead=0, fork_slice=False, window_reg=False) -> FilterDetect:
     return FilterDetect(lanes=LANES, taps_max=TAPS_MAX, lookahead=lookahead,
-                        fork_slice=fork_slice)
+                        fork_slice=fork_slice, window_reg=window_reg)
 
 
 #: The detector's smallest lookahead that hides its threshold wait at 3 lanes (24 beats).
 LOOKAHEAD = detector(LANES).lookahead_hides
 
 
-def case(lookahead=0, fork_slice=False):
+def case(lookahead=0, fork_slice=False, window_reg=False):
     """Frames and registers at the join's bound: the switch sample is the first one the
     fed-back surface can still reach."""
     rng = np.random.default_rng(44)
     bank = workload_bank(4, TAPS_MAX)
-    cfg = Config(bin_offset=join(lookahead, fork_slice).min_bin_offset, bin_len=LANES + 2,
+    cfg = Config(bin_offset=join(lookahead, fork_slice, window_reg).min_bin_offset,
+                 bin_len=LANES + 2,
                  out_shift=14, bottom_rule=2, noise_log2=3, min_sep=4)
     frames = [stitch_config(a, cfg) for a in synthetic_codes(N_ECHO_FRAMES, 500, seed=32)]
     W, P = bank.L - 1, 1 << cfg.noise_log2
@@ -113,13 +115,17 @@ def test_bound_grows_with_fork_slice():
             join(fork_slice=bad)
 
 
-def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=False):
-    """This file's case through ``FilterDetect(lanes, taps_max, lookahead, fork_slice)`` (the
-    module's ``LANES`` and ``TAPS_MAX`` must be ``lanes`` and ``taps_max``), every y and k of
-    every lane checked against the model; the bank, the model's k and its results."""
-    bank, cfg, frames = case(lookahead, fork_slice)
+def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=False,
+             window_reg=False):
+    """This file's case through ``FilterDetect(lanes, taps_max, lookahead, fork_slice,
+    window_reg)`` (the module's ``LANES`` and ``TAPS_MAX`` must be ``lanes`` and
+    ``taps_max``), every y and k of every lane checked against the model; the bank, the
+    model's k and its results."""
+    bank, cfg, frames = case(lookahead, fork_slice, window_reg)
     source, sink = TRAFFIC[traffic_name]
     params = {"fork_slice": fork_slice} if fork_slice else {}
+    if window_reg:
+        params["window_reg"] = True
     res = run(Design(FilterDetect, lanes=lanes, taps_max=taps_max, lookahead=lookahead,
                      **params),
               tmp_path,
@@ -129,8 +135,8 @@ def run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=Fals
               static={**cfg_ports(cfg, "filter", "cfg_filter"),
                       **cfg_ports(cfg, "peak", "cfg_peak"),
                       "templates": bank.K, "taps": bank.L},
-              label=f"filter_detect_{lanes}x{taps_max}_la{lookahead}{'_fs' * fork_slice}-"
-                    f"{traffic_name}")
+              label=f"filter_detect_{lanes}x{taps_max}_la{lookahead}{'_fs' * fork_slice}"
+                    f"{'_wr' * window_reg}-{traffic_name}")
     assert not res.timeout, f"timed out after {res.clocks} clocks"
     assert res.violations == {"y": 0, "o": 0}
     y, k, results = expected(bank, cfg, frames)
@@ -162,21 +168,45 @@ def test_verilator_fork_slice(tmp_path, slices, traffic_name):
     assert k.max() == bank.K - 1, "the template walk should reach the last template"
 
 
+def test_bound_grows_with_window_reg():
+    """The window in registers is a clock more of filter latency: the surface may come a beat
+    later, ``lanes`` samples; ``y`` a clock later; the frame's wait unchanged."""
+    plain, wr = join(fork_slice=2), join(fork_slice=2, window_reg=True)
+    assert wr.min_bin_offset == plain.min_bin_offset + LANES
+    assert (wr.y_latency, wr.frame_gap_clocks) == (plain.y_latency + 1, plain.frame_gap_clocks)
+    big = COMPONENTS["albcap_filter_detect"](lanes=10, taps_max=12, fork_slice=2, window_reg=1)
+    assert big.window_reg is True and big.min_bin_offset == 221
+    for fd in (plain, wr, big):
+        fd._MustUse__silence = True
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+def test_verilator_window_reg(tmp_path, traffic_name):
+    """Two fork slices and the filter's window read from its registers (the 10 x 12 join's
+    worst path on one seed ran from the window's flags through its placement into an operand
+    register, ``docs/fpga.md``), at its own ``min_bin_offset``."""
+    bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, 0, traffic_name, fork_slice=2,
+                          window_reg=True)
+    assert k.max() == bank.K - 1, "the template walk should reach the last template"
+
+
 #: The measured many-lane builds (``docs/figures/fpga.json``): their Verilator builds take
 #: minutes each, so they run only when ``ALBCAP_SLOW_TESTS=1`` asks.
-BIG_BUILDS = [(16, 8, 0, "idle", 0), (16, 8, 28, "backpressure", 0),
-              (4, 32, 0, "backpressure", 0), (8, 16, 0, "idle", 0),
-              (10, 12, 0, "backpressure", 0), (10, 12, 0, "idle", 1), (10, 12, 0, "plain", 2)]
+BIG_BUILDS = [(16, 8, 0, "idle", 0, False), (16, 8, 28, "backpressure", 0, False),
+              (4, 32, 0, "backpressure", 0, False), (8, 16, 0, "idle", 0, False),
+              (10, 12, 0, "backpressure", 0, False), (10, 12, 0, "idle", 1, False),
+              (10, 12, 0, "plain", 2, False), (10, 12, 0, "backpressure", 2, True)]
 
 
 @pytest.mark.skipif(os.environ.get("ALBCAP_SLOW_TESTS") != "1",
                     reason="minutes per build; ALBCAP_SLOW_TESTS=1 runs it")
-@pytest.mark.parametrize(("lanes", "taps_max", "lookahead", "traffic_name", "fork_slice"),
-                         BIG_BUILDS)
+@pytest.mark.parametrize(("lanes", "taps_max", "lookahead", "traffic_name", "fork_slice",
+                          "window_reg"), BIG_BUILDS)
 def test_verilator_measured_build(tmp_path, monkeypatch, lanes, taps_max, lookahead,
-                                  traffic_name, fork_slice):
+                                  traffic_name, fork_slice, window_reg):
     """A build whose clock the builds study uses, bit-exact on this file's case (at 16 lanes
     with the lookahead, ``min_bin_offset`` lies past the 500-sample echo frames: no switch)."""
     monkeypatch.setattr(sys.modules[__name__], "LANES", lanes)
     monkeypatch.setattr(sys.modules[__name__], "TAPS_MAX", taps_max)
-    run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=fork_slice)
+    run_join(tmp_path, lanes, taps_max, lookahead, traffic_name, fork_slice=fork_slice,
+             window_reg=window_reg)

@@ -5,7 +5,8 @@ and check helpers are reused): frames of 1, lanes - 1, lanes, lanes + 1, L - 1, 
 few hundred samples; surfaces early, late and none, with ``bin_len = lanes + 1`` so that the
 template switches land on every lane position; ``K`` and ``L`` changed between frames at run
 time; coefficient writes for taps past ``taps_max`` (ignored); the accumulator's extremes and
-saturation both ways. Two Verilator builds: 4 lanes of 16 taps, and 3 lanes (odd) of 8 taps.
+saturation both ways. Three Verilator builds: 4 lanes of 16 taps, 3 lanes (odd) of 8 taps, and
+4 lanes of 16 taps with the window read from its registers (``window_reg``, a clock more latency).
 Each case runs plain, with idle insertion and with backpressure.
 """
 
@@ -43,7 +44,8 @@ from model.matched_filter import K_MAX, L_MAX, Bank, matched_filter, template_in
 from model.registers import Config
 from model.vectors import lane_samples, lane_words
 
-DESIGNS = {"lanes4_taps16": (4, 16), "lanes3_taps8": (3, 8)}
+DESIGNS = {"lanes4_taps16": (4, 16, False), "lanes3_taps8": (3, 8, False),
+           "lanes4_taps16_window_reg": (4, 16, True)}
 
 
 @dataclass
@@ -114,9 +116,9 @@ def per_sample(res, lanes: int):
     return SimpleNamespace(timeout=res.timeout, violations=res.violations, sinks={"o": out})
 
 
-def unused(lanes: int = 1, taps_max: int = L_MAX) -> MatchedFilter:
+def unused(lanes: int = 1, taps_max: int = L_MAX, window_reg: bool = False) -> MatchedFilter:
     """A filter built for its attributes only (never elaborated; no warning about it)."""
-    dut = MatchedFilter(lanes=lanes, taps_max=taps_max)
+    dut = MatchedFilter(lanes=lanes, taps_max=taps_max, window_reg=window_reg)
     dut._MustUse__silence = True
     return dut
 
@@ -178,10 +180,11 @@ CASES = {"mixed": mixed_case, "rails": lambda lanes, taps_max, seed: rails_case(
 @pytest.mark.parametrize("case_name", list(CASES))
 @pytest.mark.parametrize("design", list(DESIGNS))
 def test_verilator(tmp_path, design, case_name, traffic_name):
-    lanes, taps_max = DESIGNS[design]
-    case = CASES[case_name](lanes, taps_max, seed=lanes)
+    lanes, taps_max, window_reg = DESIGNS[design]
+    case = CASES[case_name](lanes, taps_max, seed=lanes + window_reg)
     source, sink = TRAFFIC[traffic_name]
-    res = run(Design(MatchedFilter, lanes=lanes, taps_max=taps_max), tmp_path,
+    res = run(Design(MatchedFilter, lanes=lanes, taps_max=taps_max, window_reg=window_reg),
+              tmp_path,
               **lane_traffic(case, lanes, taps_max, source, sink),
               label=f"matched_filter_{design}-{case_name}-{traffic_name}")
     check(per_sample(res, lanes), case)
@@ -189,7 +192,8 @@ def test_verilator(tmp_path, design, case_name, traffic_name):
         # after the bank is loaded: one beat per clock, `latency` clocks in to out
         clk_in = res.sources["i"]["clock"]
         assert np.all(np.diff(clk_in) == 1)
-        assert np.all(res.sinks["o"]["clock"] - clk_in == unused(lanes, taps_max).latency)
+        assert np.all(res.sinks["o"]["clock"] - clk_in
+                      == unused(lanes, taps_max, window_reg).latency)
     if traffic_name == "backpressure":
         assert res.sources["i"]["stalls"] > 0
 
@@ -197,18 +201,21 @@ def test_verilator(tmp_path, design, case_name, traffic_name):
 class TestAmaranthSim:
     """Quick checks in Amaranth's simulator: small designs, short frames."""
 
+    @pytest.mark.parametrize("window_reg", [False, True])
     @pytest.mark.parametrize("lanes, taps_max", [(2, 4), (1, 3)])
-    def test_against_model(self, lanes, taps_max):
+    def test_against_model(self, lanes, taps_max, window_reg):
         case = mixed_case(lanes, taps_max, seed=9)
         keep = [0, 1, 2, 3, 4, 5, 6, 10, 14, 15]
         case = LaneCase(case.bank, case.cfg, [case.frames[i] for i in keep],
                         [case.surfaces[i] for i in keep], banks=[case.banks[i] for i in keep])
         tr = lane_traffic(case, lanes, taps_max)
-        res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max), **tr)
+        res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max, window_reg=window_reg),
+                       **tr)
         check(per_sample(res, lanes), case)
 
-    @pytest.mark.parametrize("lanes, taps_max", [(3, 8), (2, 16)])
-    def test_the_last_write_reaches_the_last_lane_first(self, lanes, taps_max):
+    @pytest.mark.parametrize("lanes, taps_max, window_reg",
+                             [(3, 8, False), (2, 16, False), (3, 8, True)])
+    def test_the_last_write_reaches_the_last_lane_first(self, lanes, taps_max, window_reg):
         """The writes go down a chain of a link per lane and group of taps; the first sample,
         taken as soon as the filter lets it after the last write (``coef_source``: tap ``L - 1``
         of template 0, written before with another value), reads that tap in its last lane,
@@ -218,15 +225,17 @@ class TestAmaranthSim:
         frames = random_frames(rng, [40, 3], rails=0)
         cfg = Config(out_shift=12, bin_offset=24, bin_len=lanes + 1)
         case = LaneCase(bank, cfg, frames, [5, -1], banks=[bank] * 2)
-        res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max),
+        res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max, window_reg=window_reg),
                        **lane_traffic(case, lanes, taps_max))
         assert np.abs(case.expected()[0]).max() < (1 << 23) - 1
         check(per_sample(res, lanes), case)
 
-    def test_a_beat_at_a_writes_own_edge_reads_the_old_bank(self):
+    @pytest.mark.parametrize("window_reg", [False, True])
+    def test_a_beat_at_a_writes_own_edge_reads_the_old_bank(self, window_reg):
         """As the one-lane design (``test_hdl_matched_filter``): a beat offered with the first
         write, tap ``L - 1`` of template 0 (lane 0's first link), is taken at its edge and
-        reads the coefficients from before it (zeros after reset); the rest match the model."""
+        reads the coefficients from before it (zeros after reset); the rest match the model.
+        With ``window_reg`` the memories are read a clock later, and so are the writes."""
         rng = np.random.default_rng(12)
         bank = Bank(rng.integers(-3000, 3000, (2, 4)).astype(np.int16))
         cfg = Config(out_shift=4, bin_offset=24, bin_len=3)
@@ -235,7 +244,7 @@ class TestAmaranthSim:
         tr = lane_traffic(case, 2, 4)
         tr["sources"]["coef"] = first_link_writes(bank)
         tr["sources"]["i"] = replace(tr["sources"]["i"], pattern=PLAIN)  # from clock 0
-        res = simulate(MatchedFilter(lanes=2, taps_max=4), **tr)
+        res = simulate(MatchedFilter(lanes=2, taps_max=4, window_reg=window_reg), **tr)
         assert res.sources["i"]["clock"][0] == res.sources["coef"]["clock"][0]
         want, _ = case.expected()
         got = per_sample(res, 2).sinks["o"]["y"]
@@ -272,9 +281,21 @@ class TestParameters:
                                              rf"not {taps_max!r}$"):
             MatchedFilter(lanes=2, taps_max=taps_max)
 
+    @pytest.mark.parametrize("window_reg", [2, -1, "yes", None, 1.0])
+    def test_bad_window_reg(self, window_reg):
+        with pytest.raises(ValueError, match=rf"^window_reg must be True or False \(or 1 or "
+                                             rf"0\), not {window_reg!r}$"):
+            MatchedFilter(lanes=2, window_reg=window_reg)
+
+    def test_window_reg_not_on_the_one_lane_design(self):
+        with pytest.raises(ValueError, match=r"^window_reg applies to the lanes design .*"
+                                             r"\(lanes=1, taps_max=64\)$"):
+            MatchedFilter(window_reg=True)
+
     def test_attributes(self):
         mf = unused(8, 16)
-        assert (mf.lanes, mf.taps_max, mf.latency) == (8, 16, 11)
+        assert (mf.lanes, mf.taps_max, mf.latency, mf.window_reg) == (8, 16, 11, False)
+        assert unused(8, 16, window_reg=1).latency == 12
         assert unused(2, 17).latency == 12
         assert unused().latency == LATENCY  # one lane: its own design
         # the one-lane join bound of hdl.detect
