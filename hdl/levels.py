@@ -1,0 +1,155 @@
+"""Logic levels between registers in a Yosys ECP5 netlist: a check that takes a minute.
+
+A place-and-route of a 10-lane join takes one to two hours per seed, and its worst path
+changes with the placement. How deep the logic into a register is, though, is fixed by
+synthesis alone: :func:`logic_levels` reads the JSON that ``synth_ecp5 -json`` writes and
+gives, per register, the most LUTs and carry chains any path into it passes after leaving a
+register, a block RAM, a DSP block or a port. A carry hop (``COUT`` -> ``CIN``) inside one
+chain is not a level: it is a dedicated wire of 0.07 ns, where each level costs a LUT or a
+chain's entry and, once placed, a route (0.5-2 ns on the ECP5). It found the detector's
+position registers made as paths of up to five chains and LUTs that the RTL wrote as one
+add each (``docs/fpga.md``, thirtieth session).
+
+No maintained tool reports this for nextpnr-ecp5 before placement (Yosys's ``sta`` needs
+timing models of every cell, which the ECP5 library does not give), so it is written here.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+__all__ = ["SEQUENTIAL", "logic_levels", "top_module"]
+
+#: Cells whose outputs start a path (registers, memories, DSP blocks with their registers).
+SEQUENTIAL = frozenset({"TRELLIS_FF", "DP16KD", "MULT18X18D", "TRELLIS_DPR16X4", "ALU54B"})
+
+
+def top_module(netlist: dict) -> dict:
+    """The module Yosys marked ``top`` (its JSON also holds the cell library's blackboxes),
+    or the only one."""
+    mods = netlist.get("modules", {})
+    tops = [m for m in mods.values() if int(m.get("attributes", {}).get("top", "0"), 2)]
+    if len(tops) == 1:
+        return tops[0]
+    if len(mods) == 1:
+        return next(iter(mods.values()))
+    raise ValueError(f"no single top module among {len(mods)} modules")
+
+
+#: Marks of the names Yosys makes for the nets of its mapped cells.
+_MADE = ("_LUT4_", "_CCU2C", "_TRELLIS_", "_DPR16X4", "$")
+
+
+def _public(net: str) -> bool:
+    """Whether a net's name is an RTL signal's (``core.detect.cand_at9``), not one Amaranth
+    or Yosys made up (``$signal$50``, ``\\$129``, ``obuf.0.2_DO_LUT4_Z_D``)."""
+    last = net.rsplit(".", 1)[-1]
+    return not any(mark in last for mark in _MADE)
+
+
+def logic_levels(netlist, match: str = "") -> dict[str, int]:
+    """The deepest logic into each register of a netlist, in levels.
+
+    Parameters
+    ----------
+    netlist : path or dict
+        Yosys's JSON netlist of a flattened ECP5 design (``synth_ecp5 -json``).
+    match : str
+        A regular expression; only registers whose net name (the RTL signal, e.g.
+        ``core.detect.cand_at9``) it finds are reported (default: all).
+
+    Returns
+    -------
+    dict
+        ``{signal name: levels}``, the most over the register's bits; a register loaded
+        straight from another is 0. Signal names are the nets' public names (not those
+        Amaranth or Yosys made up, with ``$`` or a mapped cell's suffix); a register with
+        none is left out.
+    """
+    d = json.loads(Path(netlist).read_text()) if not isinstance(netlist, dict) else netlist
+    top = top_module(d)
+    cells, nets = top["cells"], top["netnames"]
+    driver = {}
+    for name, c in cells.items():
+        for port, way in c["port_directions"].items():
+            if way == "output":
+                for bit in c["connections"][port]:
+                    if isinstance(bit, int):
+                        driver[bit] = name
+    names: dict[int, list[str]] = {}
+    for net, v in nets.items():
+        if not _public(net):
+            continue
+        for bit in v["bits"]:
+            if isinstance(bit, int):
+                names.setdefault(bit, []).append(net)
+    depth: dict[int, int] = {}
+
+    def level(bit: int) -> int:
+        # iterative depth-first search: the cones of a 10-lane join are thousands of cells
+        # deep in carry hops, past Python's recursion limit
+        stack = [bit]
+        while stack:
+            b = stack[-1]
+            if b in depth:
+                stack.pop()
+                continue
+            cell = driver.get(b)
+            if cell is None or cells[cell]["type"] in SEQUENTIAL:
+                depth[b] = 0
+                stack.pop()
+                continue
+            c, todo, best = cells[cell], [], 0
+            for port, way in c["port_directions"].items():
+                if way != "input":
+                    continue
+                for ib in c["connections"][port]:
+                    if not isinstance(ib, int):
+                        continue
+                    if ib not in depth:
+                        todo.append(ib)
+                    else:
+                        best = max(best, depth[ib] + (0 if port == "CIN" else 1))
+            if todo:
+                stack.extend(todo)
+                continue
+            depth[b] = best
+            stack.pop()
+        return depth[bit]
+
+    pattern = re.compile(match)
+    out: dict[str, int] = {}
+    for c in cells.values():
+        if c["type"] != "TRELLIS_FF":
+            continue
+        q = c["connections"]["Q"][0]
+        hit = [n for n in names.get(q, []) if pattern.search(n)]
+        if not hit:
+            continue
+        lv = max((level(b) for b in c["connections"].get("DI", []) if isinstance(b, int)),
+                 default=0)
+        for n in hit:
+            out[n] = max(out.get(n, 0), lv)
+    return out
+
+
+def main(argv=None) -> int:
+    """``python -m hdl.levels NETLIST.json [REGEX] [--top N]``: the deepest registers."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m hdl.levels", description=main.__doc__)
+    p.add_argument("netlist", type=Path)
+    p.add_argument("match", nargs="?", default="")
+    p.add_argument("--top", type=int, default=20, help="how many registers to print")
+    a = p.parse_args(argv)
+    got = logic_levels(a.netlist, a.match)
+    for n in sorted(got, key=lambda n: (-got[n], n))[:a.top]:
+        print(f"{got[n]:3d}  {n}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,92 @@
+"""hdl.levels: logic levels into registers, on hand-made netlists and on Yosys's own."""
+
+import json
+
+import pytest
+
+from firmware_host.cli import main
+from hdl.levels import logic_levels, top_module
+
+
+class _Net:
+    """A hand-made flattened netlist in Yosys's JSON form: cells wired by bit numbers."""
+
+    def __init__(self):
+        self.cells, self.nets, self.bit = {}, {}, 1
+
+    def wire(self, name=None):
+        self.bit += 1
+        if name:
+            self.nets[name] = {"bits": [self.bit]}
+        return self.bit
+
+    def cell(self, name, kind, ins: dict, outs: dict):
+        self.cells[name] = {
+            "type": kind,
+            "port_directions": {**{p: "input" for p in ins}, **{p: "output" for p in outs}},
+            "connections": {p: [b] for p, b in {**ins, **outs}.items()}}
+
+    def ff(self, name, d):
+        q = self.wire(name)
+        self.cell(f"{name}_FF", "TRELLIS_FF", {"DI": d, "CLK": "0"}, {"Q": q})
+        return q
+
+    def lut(self, name, *ins):
+        z = self.wire()
+        self.cell(name, "LUT4", dict(zip("ABCD", ins, strict=False)), {"Z": z})
+        return z
+
+    def json(self):
+        return {"modules": {
+            "LUT4": {"attributes": {"blackbox": "1"}, "cells": {}, "netnames": {}},
+            "top": {"attributes": {"top": "00000000000000000000000000000001"},
+                    "cells": self.cells, "netnames": self.nets}}}
+
+
+def test_luts_and_chains_counted_carry_hops_free():
+    n = _Net()
+    a = n.ff("a", n.wire("pin"))  # from a port: 0 levels
+    b = n.ff("b", n.lut("l2", n.lut("l1", a)))  # two LUTs
+    # a three-cell carry chain entered once: COUT -> CIN hops are free
+    s0, c0 = n.wire(), n.wire()
+    n.cell("ch0", "CCU2C", {"A0": a, "CIN": n.wire()}, {"S0": s0, "COUT": c0})
+    s1, c1 = n.wire(), n.wire()
+    n.cell("ch1", "CCU2C", {"A0": a, "CIN": c0}, {"S0": s1, "COUT": c1})
+    s2 = n.wire()
+    n.cell("ch2", "CCU2C", {"A0": b, "CIN": c1}, {"S0": s2, "COUT": n.wire()})
+    n.ff("c", s2)
+    # the chain's sum through a LUT into a second chain: three levels
+    s3 = n.wire()
+    n.cell("ch3", "CCU2C", {"A0": n.lut("l3", s2), "CIN": n.wire()}, {"S0": s3, "COUT": n.wire()})
+    n.ff("d", s3)
+    n.ff("$made", n.lut("l4", a))  # a made-up name: not reported
+    got = logic_levels(n.json())
+    assert got == {"a": 0, "b": 2, "c": 1, "d": 3}
+    assert logic_levels(n.json(), "^[bd]$") == {"b": 2, "d": 3}
+
+
+def test_sequential_cells_start_paths():
+    n = _Net()
+    q = n.wire()
+    n.cell("mul", "MULT18X18D", {"A0": n.lut("l0", n.wire("x"))}, {"P0": q})
+    n.ff("p", n.lut("l1", q))
+    assert logic_levels(n.json(), "^p$") == {"p": 1}
+
+
+def test_top_module():
+    with pytest.raises(ValueError, match="no single top module among 2 modules"):
+        top_module({"modules": {"a": {}, "b": {}}})
+    assert top_module({"modules": {"only": {"cells": {}}}}) == {"cells": {}}
+
+
+def test_command_on_yosys_netlist(capsys):
+    """``albcap hdl levels`` runs Yosys on the stitch and reads its real netlist."""
+    assert main(["hdl", "levels", "--component", "albcap_stitch", "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    # the stitch's registers are there, by their RTL names, none past a few levels
+    assert "operand_q" in got and all(0 <= v <= 8 for v in got.values())
+    assert not [n for n in got if "$" in n or "_LUT4_" in n]
+    assert main(["hdl", "levels", "--component", "albcap_stitch", "--match", "^operand_q$",
+                 "--top", "1"]) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.split() == [str(got["operand_q"]), "operand_q"]
