@@ -97,15 +97,17 @@ def _synth(args) -> int:
 
 
 def _levels(args) -> int:
+    from ._levels import deepest
     from .synth import levels
 
     params = _params(args)
-    got = levels(args.component, params or None, args.context, args.static, args.match)
+    ranked = deepest(levels(args.component, params or None, args.context, args.static,
+                            args.match))
     if args.json:
-        print(json.dumps(dict(sorted(got.items(), key=lambda kv: (-kv[1], kv[0]))), indent=1))
+        print(json.dumps(dict(ranked), indent=1))
         return 0
-    for n in sorted(got, key=lambda n: (-got[n], n))[:args.top]:
-        print(f"{got[n]:3d}  {n}")
+    for n, lv in ranked[:args.top]:
+        print(f"{lv:3d}  {n}")
     return 0
 
 
@@ -153,11 +155,11 @@ def register(subparsers) -> None:
                      help="in context, where the register groups come from: pins (untimed, "
                           "as out of context) or registers (timed, as in the device, where "
                           "they are the link's registers)")
-    from .floorplan import FLOORPLANS
+    from ._floorplan import FLOORPLANS
 
     syn.add_argument("--floorplan", choices=sorted(FLOORPLANS), default=None,
                      help="pin the hard blocks (DSPs, block RAMs) to the sites of a named "
-                          "plan (hdl/floorplan.py) before placement")
+                          "plan (hdl/_floorplan.py) before placement")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")

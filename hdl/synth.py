@@ -31,8 +31,8 @@ from pathlib import Path
 
 from amaranth.hdl import Elaboratable, Signal
 
-from .floorplan import FLOORPLANS, apply_floorplan, check_placed
-from .levels import logic_levels
+from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
+from ._levels import logic_levels
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "figure_key", "levels", "record_figures", "synth_all",
            "synth_components", "synthesize"]
@@ -298,8 +298,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         Recorded in the result. The same netlist placed with other seeds spreads by some
         5 % in fmax (``docs/fpga.md``): a change of a few MHz needs several seeds to show.
     floorplan : str, optional
-        A key of :data:`hdl.floorplan.FLOORPLANS`: the hard blocks pinned to sites before
-        placement (:func:`hdl.floorplan.apply_floorplan`), checked on the placed netlist
+        A key of :data:`hdl._floorplan.FLOORPLANS`: the hard blocks pinned to sites before
+        placement (:func:`hdl._floorplan.apply_floorplan`), checked on the placed netlist
         after. Recorded in the result (``floorplan``, and ``pinned``: how many cells).
 
     Returns
@@ -405,7 +405,7 @@ def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: s
 def levels(name: str, params: dict | None = None, context: str = "out",
            static: str = "pins", match: str = "") -> dict[str, int]:
     """Synthesize one component with Yosys only (a minute, where placing and routing a
-    many-lane join takes hours) and give :func:`hdl.levels.logic_levels` of its netlist:
+    many-lane join takes hours) and give :func:`hdl._levels.logic_levels` of its netlist:
     ``{register: LUT and carry-chain levels into it}`` for the registers ``match`` finds.
     Arguments as :func:`synthesize`."""
     components = synth_components()

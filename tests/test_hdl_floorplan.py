@@ -1,12 +1,12 @@
-"""hdl.floorplan: the ECP5-85's hard-block sites, plans pinned into Yosys netlists, and a pin
+"""hdl._floorplan: the ECP5-85's hard-block sites, plans pinned into Yosys netlists, and a pin
 checked against nextpnr itself (YoWASP) on a real component."""
 
 import json
 
 import pytest
 
-from hdl import floorplan as fp
-from hdl.floorplan import FLOORPLANS, Pin, apply_floorplan, check_placed, sites
+from hdl import _floorplan as fp
+from hdl._floorplan import FLOORPLANS, Pin, apply_floorplan, check_placed, sites
 from hdl.synth import figure_key, synthesize
 
 

@@ -1,11 +1,11 @@
-"""hdl.levels: logic levels into registers, on hand-made netlists and on Yosys's own."""
+"""hdl._levels: logic levels into registers, on hand-made netlists and on Yosys's own."""
 
 import json
 
 import pytest
 
 from firmware_host.cli import main
-from hdl.levels import logic_levels, top_module
+from hdl._levels import logic_levels, top_module
 
 
 class _Net:

@@ -21,7 +21,7 @@ import re
 import sys
 from pathlib import Path
 
-__all__ = ["SEQUENTIAL", "logic_levels", "top_module"]
+__all__ = ["SEQUENTIAL", "deepest", "logic_levels", "top_module"]
 
 #: Cells whose outputs start a path (registers, memories, DSP blocks with their registers).
 SEQUENTIAL = frozenset({"TRELLIS_FF", "DP16KD", "MULT18X18D", "TRELLIS_DPR16X4", "ALU54B"})
@@ -136,18 +136,22 @@ def logic_levels(netlist, match: str = "") -> dict[str, int]:
     return out
 
 
+def deepest(levels: dict[str, int]) -> list[tuple[str, int]]:
+    """``(register, levels)`` pairs, the deepest first (then by name)."""
+    return sorted(levels.items(), key=lambda kv: (-kv[1], kv[0]))
+
+
 def main(argv=None) -> int:
-    """``python -m hdl.levels NETLIST.json [REGEX] [--top N]``: the deepest registers."""
+    """``python -m hdl._levels NETLIST.json [REGEX] [--top N]``: the deepest registers."""
     import argparse
 
-    p = argparse.ArgumentParser(prog="python -m hdl.levels", description=main.__doc__)
+    p = argparse.ArgumentParser(prog="python -m hdl._levels", description=main.__doc__)
     p.add_argument("netlist", type=Path)
     p.add_argument("match", nargs="?", default="")
     p.add_argument("--top", type=int, default=20, help="how many registers to print")
     a = p.parse_args(argv)
-    got = logic_levels(a.netlist, a.match)
-    for n in sorted(got, key=lambda n: (-got[n], n))[:a.top]:
-        print(f"{got[n]:3d}  {n}")
+    for n, lv in deepest(logic_levels(a.netlist, a.match))[:a.top]:
+        print(f"{lv:3d}  {n}")
     return 0
 
 

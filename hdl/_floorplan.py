@@ -22,7 +22,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from .levels import top_module
+from ._levels import top_module
 
 __all__ = ["FLOORPLANS", "Pin", "apply_floorplan", "check_placed", "sites"]
 
