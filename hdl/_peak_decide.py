@@ -109,7 +109,13 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     bt_r = _delay_to(m, bd1.e, 2 * depth + 2, "beat_r")
     bt_b = _delay_to(m, bd1, 4 * depth + 6, "beat_b")
     bt_c = _reg(m, Cat(bt_b.last, bt_b.long), 2, "beat_c")
-    s_fin = _surface_record(m, L, rec, bd1, vd, d3_new, sep_at, s_found, ms_lane)
+    # the lanes' centres and s + min_sep per lane at D3 in registers of their own, a clock
+    # after D2's (adds from bd1 into the surface's record was seed 1's worst path at 10
+    # lanes: bd1.base -> base + j - 1 -> the one-hot select -> the record, 9.1 ns, 6.8 of
+    # it routing, bd1 being a wide register read far apart)
+    d3_cpos = [_reg(m, v, _POS, f"d3_cpos{j}") for j, v in enumerate(d2_cpos)]
+    d3_sep = [_reg(m, d2.base + ms_lane[j], _SEP, f"d3_sepat{j}") for j in range(L)]
+    s_fin = _surface_record(m, L, rec, bd1, vd, d3_new, sep_at, s_found, d3_cpos, d3_sep)
     pm, seg = _prefix_minimum(m, L, depth, bd1, d3_new)
     # "eligible as a bottom" travels beside the minimum to R
     elig = _delay(m, d3_elig, 2 * depth + 1, "elig")
@@ -230,17 +236,17 @@ def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos, 
     return s_found, sep_at, d3_new, d3_elig
 
 
-def _surface_record(m, L, rec, bd1, vd, d3_new, sep_at, s_found, ms_lane):
-    """D4: ``s + min_sep`` and the surface's record from the beat at D3 (``bd1``); at the
+def _surface_record(m, L, rec, bd1, vd, d3_new, sep_at, s_found, d3_cpos, d3_sep):
+    """D4: ``s + min_sep`` and the surface's record from the beat at D3 (``bd1``; per lane
+    ``j`` its centre ``d3_cpos[j]`` and ``d3_sep[j]``, the centre's ``s + min_sep``); at the
     frame's last beat, the snapshot for the divider (``s_found`` already holds the frame's
     final answer). Returns it (``s_fin``)."""
     with m.If(d3_new.any()):
-        m.d.sync += sep_at.eq(reduce(or_, [Mux(d3_new[j], bd1.base + ms_lane[j], 0)
-                                           for j in range(L)]))
+        m.d.sync += sep_at.eq(reduce(or_, [Mux(d3_new[j], d3_sep[j], 0) for j in range(L)]))
     srec, s_fin = Signal(rec), Signal(rec)
     s_new = Signal(rec)
     m.d.comb += s_new.eq(reduce(or_, [
-        Mux(d3_new[j], _lane_record(m, rec, bd1, j, bd1.base + (j - 1)).as_value(), 0)
+        Mux(d3_new[j], _lane_record(m, rec, bd1, j, d3_cpos[j]).as_value(), 0)
         for j in range(L)]))
     with m.If(d3_new.any()):
         m.d.sync += srec.eq(s_new)
