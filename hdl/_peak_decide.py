@@ -221,10 +221,12 @@ def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos, 
         sep_old = Mux(near, sep_near, Mux(near2, sep_near2, sep_ok[j]))
         m.d.sync += d3_elig[j].eq(d2_peak[j] & Mux(found, sep_old, sep_new))
     d3_new = Signal(L)  # the surface's lane, one-hot, if found in this beat
-    m.d.sync += d3_new.eq(Mux(new_s, Const(0, L) | sum(fo[j] << j for j in range(L)), 0))
+    # (the bits concatenated: as a sum of shifted bits, which it equals, Yosys made adders)
+    fo_bits = Cat(*fo)
+    m.d.sync += d3_new.eq(Mux(new_s, fo_bits, 0))
     with m.If(d2_valid):
         m.d.sync += [s_found.eq(found | new_s), s_lane2.eq(s_lane),
-                     s_lane.eq(Mux(new_s, Const(0, L) | sum(fo[j] << j for j in range(L)), 0))]
+                     s_lane.eq(Mux(new_s, fo_bits, 0))]
     # the surface message, raised at the D3 edge, held until taken; a newer one replaces it
     with m.If(surface.ready):
         m.d.sync += surface.valid.eq(0)
