@@ -6,7 +6,10 @@ synthesis alone: :func:`logic_levels` reads the JSON that ``synth_ecp5 -json`` w
 gives, per register, the most LUTs and carry chains any path into it passes after leaving a
 register, a block RAM, a DSP block or a port. A carry hop (``COUT`` -> ``CIN``) inside one
 chain is not a level: it is a dedicated wire of 0.07 ns, where each level costs a LUT or a
-chain's entry and, once placed, a route (0.5-2 ns on the ECP5). It found the detector's
+chain's entry and, once placed, a route (0.5-2 ns on the ECP5); nor is a LUT's output into
+the slice's wide-function mux (``PFUMX``, ``L6MUX21``: a LUT5 or LUT6 made of LUT4s, whose
+choice of them varies from run to run of ABC). :func:`deepest_path` walks one register's
+deepest path back, cell by cell. It found the detector's
 position registers made as paths of up to five chains and LUTs that the RTL wrote as one
 add each (``docs/fpga.md``, thirtieth session).
 
@@ -21,10 +24,18 @@ import re
 import sys
 from pathlib import Path
 
-__all__ = ["SEQUENTIAL", "deepest", "logic_levels", "top_module"]
+__all__ = ["FREE_INPUTS", "SEQUENTIAL", "deepest", "deepest_path", "logic_levels",
+           "top_module"]
 
 #: Cells whose outputs start a path (registers, memories, DSP blocks with their registers).
 SEQUENTIAL = frozenset({"TRELLIS_FF", "DP16KD", "MULT18X18D", "TRELLIS_DPR16X4", "ALU54B"})
+
+#: Inputs reached on a slice's own wires, not through the routing: a carry chain's carry in,
+#: and the data inputs of the wide-function muxes (a ``PFUMX`` joins the slice's two LUTs into
+#: a LUT5, an ``L6MUX21`` two of those into a LUT6). A hop into them is not a level; their
+#: selects (``C0``, ``SD``) are routed and are.
+FREE_INPUTS = frozenset({("CCU2C", "CIN"), ("PFUMX", "ALUT"), ("PFUMX", "BLUT"),
+                         ("L6MUX21", "D0"), ("L6MUX21", "D1")})
 
 
 def top_module(netlist: dict) -> dict:
@@ -50,6 +61,83 @@ def _public(net: str) -> bool:
     return not any(mark in last for mark in _MADE)
 
 
+class _Cones:
+    """The netlist's cells as a graph of bits, with the logic depth of each bit (memoized)
+    and the input bit that set it, so that a register's deepest path can be walked back."""
+
+    def __init__(self, d: dict):
+        top = top_module(d)
+        self.cells, nets = top["cells"], top["netnames"]
+        self.driver = {}
+        for name, c in self.cells.items():
+            for port, way in c["port_directions"].items():
+                if way == "output":
+                    for bit in c["connections"][port]:
+                        if isinstance(bit, int):
+                            self.driver[bit] = name
+        self.names: dict[int, list[str]] = {}
+        for net, v in nets.items():
+            if not _public(net):
+                continue
+            for bit in v["bits"]:
+                if isinstance(bit, int):
+                    self.names.setdefault(bit, []).append(net)
+        self.depth: dict[int, int] = {}
+        self.via: dict[int, int] = {}  # the input bit the depth came through
+
+    def level(self, bit: int) -> int:
+        depth, via, cells = self.depth, self.via, self.cells
+        # iterative depth-first search: the cones of a 10-lane join are thousands of cells
+        # deep in carry hops, past Python's recursion limit
+        stack = [bit]
+        while stack:
+            b = stack[-1]
+            if b in depth:
+                stack.pop()
+                continue
+            cell = self.driver.get(b)
+            if cell is None or cells[cell]["type"] in SEQUENTIAL:
+                depth[b] = 0
+                stack.pop()
+                continue
+            c, todo, best, came = cells[cell], [], 0, None
+            for port, way in c["port_directions"].items():
+                if way != "input":
+                    continue
+                for ib in c["connections"][port]:
+                    if not isinstance(ib, int):
+                        continue
+                    if ib not in depth:
+                        todo.append(ib)
+                        continue
+                    d = depth[ib] + ((c["type"], port) not in FREE_INPUTS)
+                    if came is None or d > best:
+                        best, came = d, ib
+            if todo:
+                stack.extend(todo)
+                continue
+            depth[b] = best
+            if came is not None:
+                via[b] = came
+            stack.pop()
+        return depth[bit]
+
+    def registers(self, match: str):
+        """``(public names, D-input bits)`` of each register whose name ``match`` finds."""
+        pattern = re.compile(match)
+        for c in self.cells.values():
+            if c["type"] != "TRELLIS_FF":
+                continue
+            hit = [n for n in self.names.get(c["connections"]["Q"][0], [])
+                   if pattern.search(n)]
+            if hit:
+                yield hit, [b for b in c["connections"].get("DI", []) if isinstance(b, int)]
+
+
+def _load(netlist) -> dict:
+    return json.loads(Path(netlist).read_text()) if not isinstance(netlist, dict) else netlist
+
+
 def logic_levels(netlist, match: str = "") -> dict[str, int]:
     """The deepest logic into each register of a netlist, in levels.
 
@@ -69,71 +157,47 @@ def logic_levels(netlist, match: str = "") -> dict[str, int]:
         Amaranth or Yosys made up, with ``$`` or a mapped cell's suffix); a register with
         none is left out.
     """
-    d = json.loads(Path(netlist).read_text()) if not isinstance(netlist, dict) else netlist
-    top = top_module(d)
-    cells, nets = top["cells"], top["netnames"]
-    driver = {}
-    for name, c in cells.items():
-        for port, way in c["port_directions"].items():
-            if way == "output":
-                for bit in c["connections"][port]:
-                    if isinstance(bit, int):
-                        driver[bit] = name
-    names: dict[int, list[str]] = {}
-    for net, v in nets.items():
-        if not _public(net):
-            continue
-        for bit in v["bits"]:
-            if isinstance(bit, int):
-                names.setdefault(bit, []).append(net)
-    depth: dict[int, int] = {}
-
-    def level(bit: int) -> int:
-        # iterative depth-first search: the cones of a 10-lane join are thousands of cells
-        # deep in carry hops, past Python's recursion limit
-        stack = [bit]
-        while stack:
-            b = stack[-1]
-            if b in depth:
-                stack.pop()
-                continue
-            cell = driver.get(b)
-            if cell is None or cells[cell]["type"] in SEQUENTIAL:
-                depth[b] = 0
-                stack.pop()
-                continue
-            c, todo, best = cells[cell], [], 0
-            for port, way in c["port_directions"].items():
-                if way != "input":
-                    continue
-                for ib in c["connections"][port]:
-                    if not isinstance(ib, int):
-                        continue
-                    if ib not in depth:
-                        todo.append(ib)
-                    else:
-                        best = max(best, depth[ib] + (0 if port == "CIN" else 1))
-            if todo:
-                stack.extend(todo)
-                continue
-            depth[b] = best
-            stack.pop()
-        return depth[bit]
-
-    pattern = re.compile(match)
+    g = _Cones(_load(netlist))
     out: dict[str, int] = {}
-    for c in cells.values():
-        if c["type"] != "TRELLIS_FF":
-            continue
-        q = c["connections"]["Q"][0]
-        hit = [n for n in names.get(q, []) if pattern.search(n)]
-        if not hit:
-            continue
-        lv = max((level(b) for b in c["connections"].get("DI", []) if isinstance(b, int)),
-                 default=0)
+    for hit, d_bits in g.registers(match):
+        lv = max((g.level(b) for b in d_bits), default=0)
         for n in hit:
             out[n] = max(out.get(n, 0), lv)
     return out
+
+
+def deepest_path(netlist, register: str) -> list[dict]:
+    """The deepest logic path into the register named ``register`` (a public net name, as
+    :func:`logic_levels` gives it; any of its bits), walked back to where it starts.
+
+    Returns
+    -------
+    list of dict
+        From the start to the register: ``{"cell", "type", "levels", "net"}`` per cell,
+        ``levels`` counted up to and including it, ``net`` a public name of its output where
+        it has one (else ""). The first entry is the register, memory, DSP block or port the
+        path leaves (``type`` "port" for a port, ``levels`` 0), the last the register's own.
+    """
+    g = _Cones(_load(netlist))
+    regs = [(hit, bits) for hit, bits in g.registers(f"^{re.escape(register)}$")]
+    if not regs:
+        raise ValueError(f"no register named {register!r} in the netlist")
+    bit = max((b for _, bits in regs for b in bits), key=g.level, default=None)
+    if bit is None:
+        raise ValueError(f"register {register!r} has no D input in the netlist")
+    steps = []
+    while True:
+        cell = g.driver.get(bit)
+        kind = g.cells[cell]["type"] if cell is not None else "port"
+        steps.append({"cell": cell or "", "type": kind, "levels": g.depth[bit],
+                      "net": next(iter(g.names.get(bit, [])), "")})
+        if bit not in g.via:
+            break
+        bit = g.via[bit]
+    steps.reverse()
+    steps.append({"cell": register, "type": "TRELLIS_FF", "levels": steps[-1]["levels"],
+                  "net": register})
+    return steps
 
 
 def deepest(levels: dict[str, int]) -> list[tuple[str, int]]:

@@ -101,6 +101,15 @@ def _levels(args) -> int:
     from .synth import levels
 
     params = _params(args)
+    if args.path:
+        steps = levels(args.component, params or None, args.context, args.static,
+                       path=args.path)
+        if args.json:
+            print(json.dumps(steps, indent=1))
+            return 0
+        for st in steps:
+            print(f"{st['levels']:3d}  {st['type']:<16} {st['net'] or st['cell']}")
+        return 0
     ranked = deepest(levels(args.component, params or None, args.context, args.static,
                             args.match))
     if args.json:
@@ -180,5 +189,8 @@ def register(subparsers) -> None:
     lev.add_argument("--match", default="",
                      help="regular expression on the register names (default: all)")
     lev.add_argument("--top", type=int, default=20, help="how many registers to print")
+    lev.add_argument("--path", metavar="REGISTER",
+                     help="print the deepest path into this register (a name as listed, "
+                          "e.g. core.filter.after) instead, cell by cell")
     lev.add_argument("--json", action="store_true", help="print every register as JSON")
     lev.set_defaults(func=_levels)

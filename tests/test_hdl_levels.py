@@ -5,7 +5,7 @@ import json
 import pytest
 
 from firmware_host.cli import main
-from hdl._levels import logic_levels, top_module
+from hdl._levels import deepest_path, logic_levels, top_module
 
 
 class _Net:
@@ -65,6 +65,40 @@ def test_luts_and_chains_counted_carry_hops_free():
     assert logic_levels(n.json(), "^[bd]$") == {"b": 2, "d": 3}
 
 
+def test_wide_muxes_data_free_select_counted():
+    """A LUT6 as four LUT4s, two PFUMX and an L6MUX21: one level through its data inputs;
+    its selects are routed inputs, a level each."""
+    n = _Net()
+    a = n.ff("a", n.wire("pin"))
+    sel = n.lut("lsel", n.lut("lsel0", a))  # a select two levels deep
+    f = []
+    for i in range(2):
+        z = n.wire()
+        n.cell(f"pfu{i}", "PFUMX", {"ALUT": n.lut(f"la{i}", a), "BLUT": n.lut(f"lb{i}", a),
+                                    "C0": a}, {"Z": z})
+        f.append(z)
+    z6 = n.wire()
+    n.cell("l6", "L6MUX21", {"D0": f[0], "D1": f[1], "SD": a}, {"Z": z6})
+    n.ff("w", z6)
+    z7 = n.wire()
+    n.cell("l6s", "L6MUX21", {"D0": f[0], "D1": f[1], "SD": sel}, {"Z": z7})
+    n.ff("s", z7)
+    assert logic_levels(n.json(), "^[ws]$") == {"w": 1, "s": 3}
+    path = deepest_path(n.json(), "s")
+    assert [(st["cell"], st["levels"]) for st in path] == [
+        ("a_FF", 0), ("lsel0", 1), ("lsel", 2), ("l6s", 3), ("s", 3)]
+    assert path[0]["net"] == "a" and path[0]["type"] == "TRELLIS_FF"
+    with pytest.raises(ValueError, match="no register named 'nothere' in the netlist"):
+        deepest_path(n.json(), "nothere")
+
+
+def test_path_from_a_port():
+    n = _Net()
+    b = n.ff("b", n.lut("l2", n.lut("l1", n.wire("pin"))))
+    assert b and [(st["type"], st["levels"]) for st in deepest_path(n.json(), "b")] == [
+        ("port", 0), ("LUT4", 1), ("LUT4", 2), ("TRELLIS_FF", 2)]
+
+
 def test_sequential_cells_start_paths():
     n = _Net()
     q = n.wire()
@@ -90,3 +124,16 @@ def test_command_on_yosys_netlist(capsys):
                  "--top", "1"]) == 0
     line = capsys.readouterr().out.strip()
     assert line.split() == [str(got["operand_q"]), "operand_q"]
+
+
+def test_command_path_on_yosys_netlist(capsys):
+    """``albcap hdl levels --path``: the stitch's deepest path into one register, from where
+    it starts to the register, its levels rising to the register's own figure."""
+    assert main(["hdl", "levels", "--component", "albcap_stitch", "--path", "operand_q",
+                 "--json"]) == 0
+    steps = json.loads(capsys.readouterr().out)
+    assert steps[-1] == {"cell": "operand_q", "type": "TRELLIS_FF",
+                         "levels": steps[-2]["levels"], "net": "operand_q"}
+    assert steps[0]["levels"] == 0 and steps[0]["type"] in ("TRELLIS_FF", "port")
+    lv = [st["levels"] for st in steps]
+    assert lv == sorted(lv) and 0 < lv[-1] <= 8
