@@ -135,17 +135,22 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         m.d.sync += [s0_mu[j].eq(used & past_lo & ~past_hi),
                      s0_dev[j].eq(used & past_hi & before_end)]
         # "at the window's last sample" as at or past it and not past the window (equalities
-        # of the base were a tree of four LUTs, a worst path)
-        close_mu.append(used & ~_sub_sign(m, st_base, mu_end[j], f"s0_mu_end{j}") & ~past_hi)
-        close_dev.append(used & ~_sub_sign(m, st_base, dev_end[j], f"s0_dev_end{j}")
-                         & before_end)
+        # of the base were a tree of four LUTs, a worst path). Registered per lane; the OR of
+        # the lanes is S1's (the OR after the compares, in one clock, was seed 3's worst path
+        # of the 10 x 12 join: the base -> a 15-bit carry chain -> three LUTs, 10.0 ns)
+        close_mu.append(_reg(m, used & ~_sub_sign(m, st_base, mu_end[j], f"s0_mu_end{j}")
+                             & ~past_hi, 1, f"s0_close_mu{j}"))
+        close_dev.append(_reg(m, used & ~_sub_sign(m, st_base, dev_end[j], f"s0_dev_end{j}")
+                              & before_end, 1, f"s0_close_dev{j}"))
     m.d.sync += [s0_y.eq(st_beat.y), s0.valid.eq(st_valid), s0.first.eq(st_beat.first),
-                 s0.close_mu.eq(reduce(or_, close_mu)), s0.close_dev.eq(reduce(or_, close_dev)),
                  s0.tag.eq(st_tag)]
     if LA:
         m.d.sync += s0.push.eq(e_push)
     m.d.sync += [s1_mu[j].eq(Mux(s0_mu[j], s0_y[j], 0)) for j in range(L)]
-    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), s1.eq(s0)]
+    # (s0's close flags are unused: S1's are the OR of the lanes' registers, which assign
+    # after s1.eq(s0) and so win)
+    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), s1.eq(s0),
+                 s1.close_mu.eq(reduce(or_, close_mu)), s1.close_dev.eq(reduce(or_, close_dev))]
     # the baseline tree, its running sum, then mu
     mu_tree = _sum_tree(m, s1_mu, "mu_tree")
     sd = _delay(m, s1, depth + 3, "side")  # sd[i]: the side band i clocks after S1
