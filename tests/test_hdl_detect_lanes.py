@@ -195,7 +195,8 @@ def test_verilator_window_reg(tmp_path, traffic_name):
 BIG_BUILDS = [(16, 8, 0, "idle", 0, False), (16, 8, 28, "backpressure", 0, False),
               (4, 32, 0, "backpressure", 0, False), (8, 16, 0, "idle", 0, False),
               (10, 12, 0, "backpressure", 0, False), (10, 12, 0, "idle", 1, False),
-              (10, 12, 0, "plain", 2, False), (10, 12, 0, "backpressure", 2, True)]
+              (10, 12, 0, "plain", 2, False), (10, 12, 0, "backpressure", 2, True),
+              (11, 12, 0, "backpressure", 2, True)]
 
 
 @pytest.mark.skipif(os.environ.get("ALBCAP_SLOW_TESTS") != "1",
