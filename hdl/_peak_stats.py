@@ -118,7 +118,10 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     # were a worst path.
     side = data.StructLayout({"valid": 1, "first": 1, "close_mu": 1, "close_dev": 1,
                               "tag": TAG_WIDTH, **({"push": 1} if LA else {})})
-    s0, s1 = Signal(side), Signal(side)
+    # S0 holds the side band but the close flags, which are per lane there (below)
+    passed = [f for f, _ in side if not f.startswith("close_")]
+    s0 = Signal(data.StructLayout({f: side[f].shape for f in passed}))
+    s1 = Signal(side)
     s0_y = Signal(data.ArrayLayout(_Y, L))
     s0_mu, s0_dev = Signal(L), Signal(L)
     s1_mu = [Signal(_Y, name=f"s1_mu{j}") for j in range(L)]
@@ -147,9 +150,7 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     if LA:
         m.d.sync += s0.push.eq(e_push)
     m.d.sync += [s1_mu[j].eq(Mux(s0_mu[j], s0_y[j], 0)) for j in range(L)]
-    # (s0's close flags are unused: S1's are the OR of the lanes' registers, which assign
-    # after s1.eq(s0) and so win)
-    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), s1.eq(s0),
+    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), *(s1[f].eq(s0[f]) for f in passed),
                  s1.close_mu.eq(reduce(or_, close_mu)), s1.close_dev.eq(reduce(or_, close_dev))]
     # the baseline tree, its running sum, then mu
     mu_tree = _sum_tree(m, s1_mu, "mu_tree")
