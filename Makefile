@@ -34,7 +34,7 @@ results: $(VENV)/.installed
 	-$(VENV)/bin/albcap bench regimes --no-progress
 	$(VENV)/bin/albcap bench speed --out docs/figures/speed.json
 	$(VENV)/bin/albcap bench builds --no-progress --out docs/figures/builds.json
-	$(VENV)/bin/albcap chart --results docs/results.md
+	$(VENV)/bin/albcap chart --results docs/results.md docs/fpga.md
 
 synth: $(VENV)/.installed
 	$(VENV)/bin/albcap hdl synth

@@ -1,7 +1,7 @@
 """Floorplans for the ECP5-85 figures: the hard blocks (DSPs, block RAMs) pinned to sites.
 
 Why: the one-lane pipeline's worst paths are single stages' (3-4 LUTs) with 4.5-5 ns of
-routing, because nextpnr spreads a stage over the part (``docs/fpga.md``: the gate's logic
+routing, because nextpnr spreads a stage over the part (``docs/fpga-history.md``: the gate's logic
 torn between its block RAMs at y 22 and the packetizer at y 50, the filter's 64 DSPs over
 x 40-119 of all three DSP rows, the stitch's DSP 25 tiles from its logic). Region constraints
 would keep each stage together, but nextpnr takes those only from a ``--pre-place`` Python

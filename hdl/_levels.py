@@ -11,7 +11,7 @@ the slice's wide-function mux (``PFUMX``, ``L6MUX21``: a LUT5 or LUT6 made of LU
 choice of them varies from run to run of ABC). :func:`deepest_path` walks one register's
 deepest path back, cell by cell. It found the detector's
 position registers made as paths of up to five chains and LUTs that the RTL wrote as one
-add each (``docs/fpga.md``, thirtieth session).
+add each (``docs/fpga-history.md``, thirtieth session).
 
 No maintained tool reports this for nextpnr-ecp5 before placement (Yosys's ``sta`` needs
 timing models of every cell, which the ECP5 library does not give), so it is written here.

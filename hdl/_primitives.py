@@ -456,7 +456,7 @@ class RegisterSlice(wiring.Component):
     ``w_rdy`` is a register: ``SyncFIFOBuffered(depth=3)``, the slice until the thirteenth
     session, makes ``w_rdy`` a compare of its inner FIFO's level, and that compare -> the
     filter's output fork -> the side FIFO's read was the pipeline's worst path (6.67 ns, 150.0
-    MHz, ``docs/fpga.md``). Like that slice, no path runs from ``r_en`` to ``w_rdy``.
+    MHz, ``docs/fpga-history.md``). Like that slice, no path runs from ``r_en`` to ``w_rdy``.
     """
 
     def __init__(self, width: int):

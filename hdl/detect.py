@@ -87,7 +87,7 @@ class FilterDetect(wiring.Component):
         Register slices (:class:`~hdl._primitives.RegisterSlice`, 0, 1 (``True``) or 2 in
         series) between the filter's output and the fork to ``y`` and the detector, so that
         the detector's input decision reads registers, not the filter's output buffer through
-        the fork (the pipeline's worst path on two nextpnr seeds, ``docs/fpga.md`` run 46;
+        the fork (the pipeline's worst path on two nextpnr seeds, ``docs/fpga-history.md`` run 46;
         the 10 x 12 join's, twenty-sixth session). Each delays the fed-back surface by up to
         two beats (its two entries): :attr:`min_bin_offset` grows by ``2 lanes`` a slice, to
         24 at one lane with one, the register's floor. A second slice gives the placer a

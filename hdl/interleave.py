@@ -12,7 +12,7 @@ the one-lane join, bit for bit; :mod:`model.interleave` is the twin.
 
 Why. The ``lanes`` joins need trees across lanes (the detector's window statistics, its
 choice among lanes, the filter's per-lane template walk) that meet in the DSP rows: the 10-
-and 12-lane joins did not route on the LFE5U-85F (``docs/fpga.md``). The engines share
+and 12-lane joins did not route on the LFE5U-85F (``docs/fpga-history.md``). The engines share
 nothing but the coefficient writes and the configuration, so each places as the one-lane join
 does, and the glue between them is two chains of registers from engine to engine (beats
 dealt down one, results collected down the other), so no wide wire spans the part. What it
@@ -160,7 +160,7 @@ class InterleavedDetect(wiring.Component):
         The dealer decides which store a beat goes to; the beat then travels down a chain of
         registers, one stage per engine, that never stalls, and the store of its engine takes
         it from its own stage: each wire of the wide beat runs from one engine to the next,
-        not from the dealer to every store (a star of them did not route: ``docs/fpga.md``).
+        not from the dealer to every store (a star of them did not route: ``docs/fpga-history.md``).
         The dealer keeps its own count of each store's beats (``held``: dealt and not yet
         seen taken), so the decision to deal reads registers beside it only; what a gearbox
         takes comes back as one bit, registered at its engine and again at the dealer, so the

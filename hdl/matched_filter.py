@@ -400,8 +400,8 @@ class MatchedFilter(wiring.Component):
         (:class:`~hdl.detect.FilterDetect`): a message is then for the current frame or an
         older one, never a newer, and ``surface.ready`` is constant 1, so that no path runs
         from the tag compare into the sender's message register (the interleaved builds'
-        worst path, 9.4 ns, ``docs/fpga.md``). A newer message would be lost: taken and never
-        used.
+        worst path, 9.4 ns, ``docs/fpga-history.md``). A newer message would be lost: taken
+        and never used.
     window_reg : bool
         The lanes design only (an error with the one-lane ``L_MAX``-tap design, whose delay
         line is registers already): the multipliers' operands read the window from its
@@ -410,7 +410,7 @@ class MatchedFilter(wiring.Component):
         ``taps`` that fan out over every lane, and each position feeds up to ``lanes``
         operand registers beside DSP blocks spread over the part: at 10 lanes x 12 taps that
         placement and its route were one path (``at5`` -> the window -> ``a0_9``, 11.5 ns,
-        ``docs/fpga.md``). With it the two are cut apart, at a clock more ``latency``
+        ``docs/fpga-history.md``). With it the two are cut apart, at a clock more ``latency``
         (the template copies load a clock later to keep the operands paired).
 
     With the defaults this is the one-lane design described in the Notes; any other choice is

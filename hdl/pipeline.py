@@ -73,8 +73,8 @@ class _Beside(wiring.Component):
     Why not a FIFO: the side FIFO (``amaranth.lib.fifo.SyncFIFO``, its flags made registers)
     had one ``level`` stepped by both ends, and the two ends sit a stage apart on the part. Its
     level was the end of the pipeline's worst path on all three nextpnr seeds of run 45
-    (``docs/fpga.md``: from the registered write enable, 7.39 ns, 5.93 of it routing; from the
-    pack slice's ``w_rdy`` through the join's read, 6.76 and 7.17 ns).
+    (``docs/fpga-history.md``: from the registered write enable, 7.39 ns, 5.93 of it routing;
+    from the pack slice's ``w_rdy`` through the join's read, 6.76 and 7.17 ns).
 
     Ports: ``w_data``, ``w_en`` (the stage's acceptance), ``r_data`` (the entry of the sample
     at the stage's output), ``r_en`` (that sample taken). ``write_delay`` registers in front of

@@ -83,7 +83,7 @@ class PortShell(Elaboratable):
     a pin are not timed, as out of context. With ``static="registers"`` they come from a
     second shift register, fed by the pin ``cfg_din``, and every path from them is timed, as
     in the device (:class:`hdl.top.Top`), where they are the link's registers: nextpnr has no
-    multicycle constraint, so a design must make them short (``docs/fpga.md``).
+    multicycle constraint, so a design must make them short (``docs/fpga-history.md``).
     Every other port, a single control or status signal too, goes through the shell. The
     shell's clock domain has no reset (as out of context, where the reset port is never
     routed): the figures are the logic's, not a reset network's.
@@ -295,8 +295,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         when ``context`` is ``in``.
     seed : int
         nextpnr's random seed (1 for every recorded figure until the thirteenth session).
-        Recorded in the result. The same netlist placed with other seeds spreads by some
-        5 % in fmax (``docs/fpga.md``): a change of a few MHz needs several seeds to show.
+        Recorded in the result. The same netlist placed with other seeds spreads widely in
+        fmax (94.6-114.7 MHz over seeds 1-3 of one 10-lane join, ``docs/fpga.md``): a change
+        needs several seeds to show.
     floorplan : str, optional
         A key of :data:`hdl._floorplan.FLOORPLANS`: the hard blocks pinned to sites before
         placement (:func:`hdl._floorplan.apply_floorplan`), checked on the placed netlist

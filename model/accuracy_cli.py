@@ -6,8 +6,9 @@ full default run writes ``docs/figures/accuracy.json`` or ``docs/figures/regimes
 record ``docs/results.md`` is built from, and a partial run (``--quick``, ``--methods``,
 ``--shots``, ``--depths`` or a ``--seed`` other than 0; not ``--scheduler``, which changes
 only the times) writes nothing, so as never to replace that record. ``albcap chart`` reads
-them back and draws the charts; ``albcap chart --results docs/results.md`` also refreshes the
-page's generated tables. Sweeps run on Dask: local processes by default,
+them back and draws the charts; ``albcap chart --results docs/results.md docs/fpga.md``
+also refreshes the pages' generated tables (``fpga.md``'s from ``docs/figures/fpga.json``).
+Sweeps run on Dask: local processes by default,
 ``--scheduler sync|threads|processes`` or the address of a ``dask.distributed`` scheduler.
 ``albcap bench speed [--json]`` times methods serially on the sweep's ``unstretched`` batch
 (``model.speed``) and writes its JSON only to ``--out``.
@@ -269,22 +270,24 @@ def _cmd_bench_builds(args) -> int:
     return 0
 
 
-def _read(path: str, what: str):
+def _read(path: str, command: str):
+    """The JSON at ``path``, or None when it does not exist; ``command`` writes it."""
     p = Path(path)
     if not p.exists():
         return None
     try:
         return json.loads(p.read_text())
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{p}: not valid JSON ({exc}); run `albcap bench {what}`") from None
+        raise ValueError(f"{p}: not valid JSON ({exc}); run `{command}`") from None
 
 
 def _cmd_chart(args) -> int:
     from .charts import render_results, result_tables, write_charts
 
-    acc = _read(args.accuracy, "accuracy")
-    reg = _read(args.regimes, "regimes")
-    builds = _read(args.builds, "builds")
+    acc = _read(args.accuracy, "albcap bench accuracy")
+    reg = _read(args.regimes, "albcap bench regimes")
+    builds = _read(args.builds, "albcap bench builds")
+    fpga = _read(args.fpga, "albcap hdl synth --out FILE")
     if acc is None and reg is None:
         raise ValueError(f"neither {args.accuracy} nor {args.regimes} exists; run "
                          "`albcap bench accuracy` or `albcap bench regimes` first")
@@ -300,10 +303,10 @@ def _cmd_chart(args) -> int:
         acc = scored
     for path in write_charts(acc, reg, args.out_dir, builds):
         print(f"wrote {path}")
-    if args.results:
-        page = Path(args.results)
+    tables = result_tables(acc, reg, builds, fpga) if args.results else {}
+    for page in map(Path, args.results or ()):
         text = page.read_text()
-        new = render_results(text, result_tables(acc, reg, builds))
+        new = render_results(text, tables)
         if new != text:
             page.write_text(new)
             print(f"updated {page}")
@@ -340,8 +343,11 @@ def register(sub) -> None:
     p.add_argument("--regimes", default=str(FIGURES / "regimes.json"))
     p.add_argument("--builds", default=str(FIGURES / "builds.json"))
     p.add_argument("--out-dir", default=str(FIGURES), help="where the PNG and SVG go")
-    p.add_argument("--results", help="markdown page whose generated tables to refresh "
-                                     "(docs/results.md)")
+    p.add_argument("--fpga", default=str(FIGURES / "fpga.json"),
+                   help="the recorded FPGA figures (albcap hdl synth --out), for docs/fpga.md")
+    p.add_argument("--results", nargs="+", metavar="PAGE",
+                   help="markdown pages whose generated tables to refresh (docs/results.md "
+                        "docs/fpga.md)")
     p.set_defaults(func=_cmd_chart)
 
 

@@ -543,12 +543,56 @@ def _builds_table(builds: dict) -> str:
     return "\n".join(rows)
 
 
-def result_tables(acc: dict | None, reg: dict | None,
-                  builds: dict | None = None) -> dict[str, str]:
-    """Every generated table of ``docs/results.md``, by marker name."""
+#: The order of the constructor keywords in :func:`_fpga_table`'s build column (others follow).
+_FPGA_PARAM_ORDER = ("lanes", "taps_max", "engines", "lookahead", "fork_slice", "window_reg")
+
+
+def _fpga_build(f: dict) -> str:
+    """A recorded figure's component and constructor keywords, e.g. ``filter_detect 11 x 12,
+    fork_slice 2, window_reg`` (lanes x taps), ``peak_detect 8 lanes``."""
+    p = dict(f.get("params") or {})
+    name = f["component"].removeprefix("albcap_")
+    parts = []
+    if "taps_max" in p:
+        parts.append(f"{p.pop('lanes', 1)} x {p.pop('taps_max')}")
+    elif "lanes" in p:
+        parts.append(f"{p.pop('lanes')} lanes")
+    order = {k: i for i, k in enumerate(_FPGA_PARAM_ORDER)}
+    for k in sorted(p, key=lambda k: (order.get(k, len(order)), k)):
+        flag = p[k] is True or (k == "window_reg" and p[k] == 1)  # a switch: named when on
+        parts.append(k if flag else f"{k} {p[k]}")
+    return f"{name} {', '.join(parts)}".strip() if parts else name
+
+
+def _fpga_table(fpga: dict) -> str:
+    """Every recorded FPGA figure (``docs/figures/fpga.json``, :func:`hdl.synth.record_figures`):
+    the build, how it was placed, its clock, rate and size, and the path that holds the clock.
+    Rows in the file's order (sorted by configuration key); a field a run predates is ``-``."""
+    rows = ["| build | context | registers | seed | placer, router | fmax MHz | MS/s | LUTs "
+            "| FFs | DSPs | BRAMs | worst path (ns, of it routing) |",
+            "|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|"]
+    for f in fpga["figures"].values():
+        w = f.get("worst_path")
+        path = "-" if not w else (f"`{w['from']}` -> `{w['to']}` ({w['ns']:g}, "
+                                  f"{w['routing_ns']:g})")
+        ctx = f.get("context", "out")
+        regs = f.get("static", "pins") if ctx == "in" else "-"
+        place = f"{f.get('placer', 'heap')}, {f.get('router', 'router1')}"
+        rows.append(f"| {_fpga_build(f)} | {ctx} | {regs} | {f.get('seed', '-')} | {place} | "
+                    f"{f['fmax_mhz']:g} | {f['samples_per_s'] / 1e6:.0f} | {f['luts']} | "
+                    f"{f['ffs']} | {f['dsps']} | {f['brams']} | {path} |")
+    return "\n".join(rows)
+
+
+def result_tables(acc: dict | None, reg: dict | None, builds: dict | None = None,
+                  fpga: dict | None = None) -> dict[str, str]:
+    """Every generated table of ``docs/results.md`` (and ``fpga`` of ``docs/fpga.md``), by
+    marker name."""
     t = {"run": _run_table(acc, reg)}
     if builds is not None:
         t["builds"] = _builds_table(builds)
+    if fpga is not None:
+        t["fpga"] = _fpga_table(fpga)
     if acc is not None:
         from .accuracy import score
 
@@ -573,7 +617,8 @@ def render_results(text: str, tables: dict[str, str]) -> str:
     A table whose results were not given keeps its old content.
     """
     known = {"run", "summary", "core", "papers", "targets", "per_depth", "channels", "stitch",
-             "regimes", "unstretched", "unstretched_summary", "unstretched_targets", "builds"}
+             "regimes", "unstretched", "unstretched_summary", "unstretched_targets", "builds",
+             "fpga"}
 
     def fill(m: re.Match) -> str:
         name = m.group(2)

@@ -1,5 +1,7 @@
 """model.charts: what the speed-against-accuracy chart puts on its front."""
 
+from pathlib import Path
+
 from model.charts import onchip_point, pareto_front
 
 
@@ -53,3 +55,73 @@ def test_chart_writes_the_rescored_targets_back(tmp_path):
     back = json.loads(path.read_text())
     assert back["targets"] == score(acc)["targets"]
     assert all(t["value"] != -1.0 for t in back["targets"])
+
+
+FPGA = {"format": "albcap-fpga-1", "device": {"part": "LFE5U-85F"}, "figures": {
+    "albcap_filter_detect[context=in,fork_slice=2,lanes=11,static=registers,taps_max=12]": {
+        "component": "albcap_filter_detect", "fmax_mhz": 97.4, "luts": 33306, "ffs": 26437,
+        "dsps": 134, "brams": 0, "lanes": 11, "samples_per_s": 1071400000,
+        "params": {"window_reg": 1, "taps_max": 12, "lanes": 11, "fork_slice": 2},
+        "placer": "static", "router": "router1", "seed": 3, "context": "in",
+        "static": "registers",
+        "worst_path": {"ns": 10.27, "routing_ns": 9.03, "from": "a.ready", "to": "b.skid",
+                       "logic_steps": 3}},
+    "albcap_peak_detect[lanes=8]": {
+        "component": "albcap_peak_detect", "fmax_mhz": 96.5, "luts": 10773, "ffs": 8004,
+        "dsps": 2, "brams": 0, "lanes": 8, "samples_per_s": 772000000,
+        "params": {"lanes": 8}}}}
+
+
+def test_the_fpga_table_names_each_build_and_how_it_was_placed():
+    from model.charts import _fpga_table
+
+    rows = _fpga_table(FPGA).splitlines()
+    assert len(rows) == 4 and rows[0].startswith("| build | context | registers | seed")
+    # lanes x taps first, then the keywords in a fixed order; the path with its routing
+    assert rows[2] == ("| filter_detect 11 x 12, fork_slice 2, window_reg | in | registers | 3 "
+                       "| static, router1 | 97.4 | 1071 | 33306 | 26437 | 134 | 0 "
+                       "| `a.ready` -> `b.skid` (10.27, 9.03) |")
+    # a figure older than the seed, placer and path fields: defaults said, the rest "-"
+    assert rows[3] == ("| peak_detect 8 lanes | out | - | - | heap, router1 | 96.5 | 772 "
+                       "| 10773 | 8004 | 2 | 0 | - |")
+
+
+def test_the_fpga_page_shows_the_recorded_figures():
+    """``docs/fpga.md``'s table is the one ``albcap chart`` makes of ``docs/figures/fpga.json``:
+    a figure recorded without the page regenerated fails here."""
+    import json
+    from pathlib import Path
+
+    from model.charts import render_results, result_tables
+
+    docs = Path(__file__).resolve().parent.parent / "docs"
+    fpga = json.loads((docs / "figures" / "fpga.json").read_text())
+    page = (docs / "fpga.md").read_text()
+    assert "<!-- begin table:fpga -->" in page
+    assert render_results(page, result_tables(None, None, fpga=fpga)) == page
+
+
+def test_chart_refreshes_every_page_given(tmp_path, capsys):
+    from firmware_host.cli import main
+
+    fpga = tmp_path / "fpga.json"
+    fpga.write_text(__import__("json").dumps(FPGA))
+    pages = [tmp_path / "a.md", tmp_path / "b.md"]
+    pages[0].write_text("# a\n<!-- begin table:fpga -->\nold\n<!-- end table:fpga -->\n")
+    pages[1].write_text("# b\n<!-- begin table:builds -->\nkept\n<!-- end table:builds -->\n")
+    acc = Path(__file__).resolve().parent.parent / "docs" / "figures" / "accuracy.json"
+    scratch = tmp_path / "accuracy.json"  # chart writes the rescored targets back
+    scratch.write_bytes(acc.read_bytes())
+    assert main(["chart", "--accuracy", str(scratch), "--regimes", str(tmp_path / "no.json"),
+                 "--builds", str(tmp_path / "no.json"), "--fpga", str(fpga),
+                 "--out-dir", str(tmp_path), "--results", *map(str, pages)]) == 0
+    assert "| peak_detect 8 lanes |" in pages[0].read_text()
+    assert "old" not in pages[0].read_text()
+    assert "kept" in pages[1].read_text()  # no builds given: its table stays as it was
+
+    fpga.write_text("{not json")
+    before = pages[0].read_text()
+    assert main(["chart", "--accuracy", str(scratch), "--fpga", str(fpga),
+                 "--out-dir", str(tmp_path), "--results", str(pages[0])]) != 0
+    assert "fpga.json: not valid JSON" in capsys.readouterr().err
+    assert pages[0].read_text() == before  # a bad record changes no page

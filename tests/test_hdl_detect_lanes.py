@@ -162,7 +162,7 @@ def test_verilator(tmp_path, lookahead, traffic_name):
 @pytest.mark.parametrize("slices", [1, 2])
 def test_verilator_fork_slice(tmp_path, slices, traffic_name):
     """The many-lane join with one or two register slices before its fork (the filter ->
-    detector hop was the 10 x 12 join's worst route, ``docs/fpga.md``), at its own
+    detector hop was the 10 x 12 join's worst route, ``docs/fpga-history.md``), at its own
     ``min_bin_offset``."""
     bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, 0, traffic_name, fork_slice=slices)
     assert k.max() == bank.K - 1, "the template walk should reach the last template"
@@ -184,7 +184,7 @@ def test_bound_grows_with_window_reg():
 def test_verilator_window_reg(tmp_path, traffic_name):
     """Two fork slices and the filter's window read from its registers (the 10 x 12 join's
     worst path on one seed ran from the window's flags through its placement into an operand
-    register, ``docs/fpga.md``), at its own ``min_bin_offset``."""
+    register, ``docs/fpga-history.md``), at its own ``min_bin_offset``."""
     bank, k, _ = run_join(tmp_path, LANES, TAPS_MAX, 0, traffic_name, fork_slice=2,
                           window_reg=True)
     assert k.max() == bank.K - 1, "the template walk should reach the last template"

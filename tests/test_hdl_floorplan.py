@@ -54,7 +54,7 @@ class TestSites:
         assert len(taken) == len(set(taken))  # no box overlaps another of its kind
         sizes = {pin.prefix: len(pin.sites()) for pin in plan}
         # the pipeline's hard blocks: 64 filter taps, 2 detector, 1 stitch DSPs; 10 gate
-        # and 24 packetizer block RAMs (docs/fpga.md)
+        # and 24 packetizer block RAMs (docs/fpga-history.md)
         assert sizes["core.detect.filter"] >= 64 and sizes["core.pack"] >= 24
         assert sizes["core.gate"] >= 10 and sizes["core.stitch"] >= 1
 
