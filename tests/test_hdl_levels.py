@@ -26,9 +26,10 @@ class _Net:
             "port_directions": {**{p: "input" for p in ins}, **{p: "output" for p in outs}},
             "connections": {p: [b] for p, b in {**ins, **outs}.items()}}
 
-    def ff(self, name, d):
+    def ff(self, name, d, **pins):
+        """A flip-flop; ``pins`` its other inputs (``CE``, ``LSR``)."""
         q = self.wire(name)
-        self.cell(f"{name}_FF", "TRELLIS_FF", {"DI": d, "CLK": "0"}, {"Q": q})
+        self.cell(f"{name}_FF", "TRELLIS_FF", {"DI": d, "CLK": "0", **pins}, {"Q": q})
         return q
 
     def lut(self, name, *ins):
@@ -63,6 +64,23 @@ def test_luts_and_chains_counted_carry_hops_free():
     got = logic_levels(n.json())
     assert got == {"a": 0, "b": 2, "c": 1, "d": 3}
     assert logic_levels(n.json(), "^[bd]$") == {"b": 2, "d": 3}
+
+
+def test_enable_and_reset_paths_count():
+    """A register's clock enable and set/reset are timed like its data: the deepest of the
+    three is its level, and its path is walked back through that pin (the gate's fine counter:
+    its data one LUT from registers, its reset four)."""
+    n = _Net()
+    a = n.ff("a", n.wire("pin"))
+    en = n.lut("e2", n.lut("e1", a))
+    clear = n.lut("r3", n.lut("r2", n.lut("r1", a)))
+    n.ff("loaded", n.lut("d1", a), CE=en)
+    n.ff("cleared", n.lut("d1b", a), CE=en, LSR=clear)
+    n.ff("enabled", a, CE=n.lut("e3", a))
+    got = logic_levels(n.json())
+    assert got == {"a": 0, "loaded": 2, "cleared": 3, "enabled": 1}
+    assert [s["cell"] for s in deepest_path(n.json(), "cleared")] == \
+        ["a_FF", "r1", "r2", "r3", "cleared"]
 
 
 def test_wide_muxes_data_free_select_counted():
