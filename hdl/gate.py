@@ -199,7 +199,10 @@ class Gate(wiring.Component):
         sat_now = ~sync & fine_sat
         coarse_now = Mux(sync, coarse1, coarse)  # modulo 2^24 by the signal's width
         period = sync | renew  # this step is the first of a tick period
-        tick = Mux(period, div_le1, rem0)
+        # a step ticks when it is the first of a period and fine_div <= 1, or when its
+        # period's count ran out; without a line sync that is `tick_ns`, from registers alone
+        tick_ns = Mux(renew, div_le1, rem0)
+        tick = Mux(sync, div_le1, tick_ns)
         with m.If(step):
             with m.If(sync):
                 m.d.sync += [coarse.eq(coarse1), coarse1.eq(coarse1 + 1)]
@@ -208,17 +211,31 @@ class Gate(wiring.Component):
             with m.Elif(period):
                 m.d.sync += [renew.eq(0), rem.eq(div_m2), rem0.eq(div2)]
             with m.Else():
-                m.d.sync += [rem.eq(rem - 1), rem0.eq(rem == 1)]
-            with m.If(sync):
-                # fine restarts at 0, or 1 on a tick
-                m.d.sync += [fine.eq(tick), fine1.eq(tick + 1), fine_top.eq(0), top1.eq(0),
-                             fine_sat.eq(0)]
-            with m.Elif(tick):
-                with m.If(fine_top):
-                    m.d.sync += fine_sat.eq(1)
-                with m.Else():
-                    m.d.sync += [fine.eq(fine1), fine_top.eq(top1), fine1.eq(fine1 + 1),
-                                 top1.eq(fine1 == _FINE_MAX - 1)]
+                # here rem >= 1 (rem0 is clear), so rem == 1 is rem <= 1: a carry chain's
+                # sign, not a tree of LUTs over the whole width
+                m.d.sync += [rem.eq(rem - 1), rem0.eq(_le(rem, 1))]
+        # The fine counter's restart on a line sync comes first, outside the other updates,
+        # so that Yosys makes it the flip-flops' own reset over their enable (LSR = step &
+        # sync, one LUT of two registers), and the tick it tests is `div_le1` there and
+        # `tick_ns` after, so that `line_sync` does not pass through the tick's LUT. Nested
+        # inside `step` as the counters above are, the reset was legalized as "reset and
+        # enabled", its LSR a LUT behind the enable's logic: four LUTs from `line_sync` to the
+        # reset of `fine` or `top1`, the one-lane pipeline's worst path on five placements of
+        # six (thirty-third session, docs/fpga.md).
+        with m.If(step & sync):
+            # fine restarts at 0, or 1 on a tick
+            m.d.sync += [fine.eq(div_le1), fine1.eq(div_le1 + 1), fine_top.eq(0), top1.eq(0),
+                         fine_sat.eq(0)]
+        with m.Elif(step & tick_ns):
+            with m.If(fine_top):
+                m.d.sync += fine_sat.eq(1)
+            with m.Else():
+                # fine1 is at most _FINE_MAX here, and at _FINE_MAX this step sets fine_top,
+                # which stops the counter (top1 unread) until a line sync clears both: so
+                # fine1 == _FINE_MAX - 1 may be fine1 >= _FINE_MAX - 1, a carry chain's sign,
+                # not a tree of LUTs over the whole width
+                m.d.sync += [fine.eq(fine1), fine_top.eq(top1), fine1.eq(fine1 + 1),
+                             top1.eq(_le(_FINE_MAX - 1, fine1))]
         fine_now = Mux(sync, 0, fine)
 
         # Gate state: busy from the accepted trigger to the frame's last sample (inclusive).
