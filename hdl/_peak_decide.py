@@ -93,10 +93,10 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     # LUT of its own on the decision paths
     rule = [_reg(m, cfg.bottom_rule == r, 1, f"rule_is{r}", True) for r in range(3)]
     rec = record_layout(d1.k.shape().elem_shape)
-    d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos = _local_maxima(
+    d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos = _local_maxima(
         m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, stats.bound, stats.sbound)
     s_found, sep_at, d3_new, d3_any, d3_elig = _surface(
-        m, top.surface, L, d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos, ms_le)
+        m, top.surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos, ms_le)
     # The beat travels with its valid bit to C, 4 depth + 8 clocks after D2; it is read at
     # D3 (bd1: everything), R (bt_r, 2 depth + 2 clocks on: the samples), B2 (bt_b, 4 depth
     # + 6 clocks on: samples, templates, base, first) and C (bt_c: last, long). The long
@@ -141,8 +141,8 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, d
 
     Returns the beat's copy at D2 (``e``: the previous beat's last two samples and the lanes,
     ``ke``, ``base``, ``first``, ``last``, ``long``, ``tag``), its valid bit, the peak flags
-    per lane, the same for peaks above the surface's bound (``dec_sbound``) too, and the
-    centres' positions at D2a and D2.
+    per lane, the same for peaks above the surface's bound (``dec_sbound``) too, the first of
+    those one-hot, and the centres' positions at D2a and D2.
     """
     k_shape = d1.k.shape().elem_shape
     y1, y2 = Signal(_Y), Signal(_Y)  # the last two samples of the previous beat
@@ -179,13 +179,21 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, d
     d2 = _reg(m, d2a, beat, "d2")
     d2_valid = _reg(m, d2a_valid, 1, "d2_valid")
     d2_peak, d2_speak = Signal(L), Signal(L)
+    speak = [reduce(and_, tests[j]) & s_tests[j] for j in range(L)]
     m.d.sync += [d2_peak[j].eq(reduce(and_, tests[j])) for j in range(L)]
-    m.d.sync += [d2_speak[j].eq(reduce(and_, tests[j]) & s_tests[j]) for j in range(L)]
+    m.d.sync += [d2_speak[j].eq(speak[j]) for j in range(L)]
+    # the first surface peak of the beat, one-hot, in a register of its own beside d2_speak:
+    # D3 then only selects with it (the priority and the 10-way select of d2_cpos in D3's
+    # clock were seed 2's worst path at 10 x 12, d2_speak -> surface.payload.n, 10.6 ns)
+    d2_sfo = Signal(L)
+    m.d.sync += [d2_sfo[j].eq(speak[j] & ~reduce(or_, speak[:j], Const(0)))
+                 for j in range(L)]
     d2_cpos = [_reg(m, v, _POS, f"d2_cpos{j}") for j, v in enumerate(d2a_cpos)]
-    return d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos
+    return d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos
 
 
-def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos, ms_le):
+def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos,
+             ms_le):
     """D3: the surface (the frame's first peak above the surface's bound, ``d2_speak``) and
     its message on ``surface``, lanes eligible as a bottom (peaks, ``d2_peak``).
 
@@ -210,8 +218,7 @@ def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2a_cpos, d2_cpos, 
     sep_ok = [_reg(m, ~_sub_sign(m, d2a_cpos[j], sep_at, f"d3_sep{j}"), 1, f"d3_sep{j}")
               for j in range(L)]
     found = s_found & ~d2.first
-    pre = [d2_speak[:j + 1].any() for j in range(L)]  # a surface peak at or before lane j
-    fo = [d2_speak[0]] + [d2_speak[j] & ~pre[j - 1] for j in range(1, L)]  # the first, one-hot
+    fo = [d2_sfo[j] for j in range(L)]  # the first surface peak, one-hot (registered at D2)
     new_s = Signal()
     m.d.comb += new_s.eq(d2_valid & ~found & d2_speak.any())
     near, near2 = s_lane.any(), s_lane2.any()
