@@ -543,8 +543,9 @@ def _builds_table(builds: dict) -> str:
     return "\n".join(rows)
 
 
-#: The order of the constructor keywords in :func:`_fpga_table`'s build column (others follow).
-_FPGA_PARAM_ORDER = ("lanes", "taps_max", "engines", "lookahead", "fork_slice", "window_reg")
+#: The order of the constructor keywords after lanes x taps in :func:`_fpga_table`'s build
+#: column (others follow, by name).
+_FPGA_PARAM_ORDER = ("engines", "lookahead", "fork_slice", "window_reg")
 
 
 def _fpga_build(f: dict) -> str:
@@ -561,7 +562,7 @@ def _fpga_build(f: dict) -> str:
     for k in sorted(p, key=lambda k: (order.get(k, len(order)), k)):
         flag = p[k] is True or (k == "window_reg" and p[k] == 1)  # a switch: named when on
         parts.append(k if flag else f"{k} {p[k]}")
-    return f"{name} {', '.join(parts)}".strip() if parts else name
+    return f"{name} {', '.join(parts)}" if parts else name
 
 
 def _fpga_table(fpga: dict) -> str:
