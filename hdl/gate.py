@@ -151,8 +151,8 @@ class Gate(wiring.Component):
             return _reg(m, value, shape, f"{name}_q", True)
 
         gate_len, gate_delay, fine_div = cfg.gate_len, cfg.gate_delay, cfg.fine_div
-        live_length = gate_len | (gate_len == 0)  # gate_len = 0 counts as 1
-        length = q(live_length, gate_len.shape(), "length")
+        len0 = gate_len == 0  # counts as 1
+        length = q(gate_len | len0, gate_len.shape(), "length")
         len1 = q(gate_len <= 1, 1, "len1")  # length == 1
         len2 = q(gate_len == 2, 1, "len2")  # length == 2
         no_delay = q(gate_delay == 0, 1, "no_delay")
@@ -161,8 +161,10 @@ class Gate(wiring.Component):
         delay_m2 = q(gate_delay - 2, gate_delay.shape(), "delay_m2")
         # the counters' loads while idle: length less 2 (no delay: the trigger's sample is
         # kept) or less 1, chosen at the load
-        len_m1 = q(live_length - 1, gate_len.shape(), "len_m1")
-        len_m2 = q(live_length - 2, gate_len.shape(), "len_m2")
+        # (gate_len = 0 as 1, chosen after the subtraction: the zero test beside the carry
+        # chain, not in front of it, where it held the gate alone at 178 MHz in context)
+        len_m1 = q(Mux(len0, 0, gate_len - 1), gate_len.shape(), "len_m1")
+        len_m2 = q(Mux(len0, -1, gate_len - 2), gate_len.shape(), "len_m2")
         div_le1 = q(fine_div <= 1, 1, "div_le1")
         div2 = q(fine_div == 2, 1, "div2")
         div_m2 = q(fine_div - 2, fine_div.shape(), "div_m2")
