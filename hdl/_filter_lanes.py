@@ -24,7 +24,7 @@ one compare of ``rem`` with a bound registered from ``bin_len``, so no compare f
 from __future__ import annotations
 
 from amaranth.hdl import Const, Module, Mux, Signal, signed
-from amaranth.lib import data, memory
+from amaranth.lib import data
 
 from model.matched_filter import COEF_WIDTH, K_MAX
 from model.registers import by_name
@@ -32,12 +32,12 @@ from model.registers import by_name
 from ._primitives import _le, _output_buffer, _reg
 from .layouts import STITCHED
 from .matched_filter import (
-    _J_BITS,
     _K_SHAPE,
     N_WIDTH,
     TAG_WIDTH,
     RegisteredMultiplier,
     _coef_chain,
+    _coef_memory,
     _flow_control,
     _round_saturate,
     _saturation_bounds,
@@ -94,12 +94,8 @@ def elaborate(mf, platform) -> Module:
     groups = min(K_MAX, -(-T // 4))
     # (with window_reg the template copies load a clock later, as the operands do)
     wr = int(mf.window_reg)
-    # Each memory's write enable is a register of its own, decoded from its group's link a
-    # clock ahead; the address and data then come from the next link, which holds that write a
-    # clock later, so no data register is added (one more link, after the last group). Decoded
-    # in the clock of the write, the enable was the 10 x 12 join's worst path on seed 2: a
-    # link's valid through the decode to a LUT RAM's write enable, 10.2 ns, 8.6 of it routing.
-    # The writes land a clock later, so the hold is that of a chain one link longer.
+    # Each memory's write enable is decoded a link ahead (`_coef_memory`): one more link, after
+    # the last group, and the hold of a chain one link longer.
     wlink, whold = _coef_chain(m, mf.coef, P * groups + 1, read_after=1 + wr)
     accept, _take, accept_dl = _flow_control(m, mf, capacity, hold_nx=whold)
 
@@ -294,28 +290,16 @@ def elaborate(mf, platform) -> Module:
         prods = []
         for j in range(T):
             g = j * groups // T
-            mem = memory.Memory(shape=signed(COEF_WIDTH), depth=K_MAX, init=[])
-            m.submodules[f"h{p}_{j}"] = mem
-            wp = mem.write_port()
-            rp = mem.read_port(domain="comb")
+            coef = _coef_memory(m, f"{p}_{j}", wlink, p * groups + g, j, g, k_copy[g])
             mul = m.submodules[f"mul{p}_{j}"] = RegisteredMultiplier(STITCHED,
                                                                      signed(COEF_WIDTH))
-            lk, lk_next = wlink[p * groups + g], wlink[p * groups + g + 1]
-            we = Signal(name=f"we{p}_{j}")
-            m.d.sync += we.eq(lk.valid & (lk.addr[:_J_BITS] == j))
-            m.d.comb += [
-                wp.addr.eq(lk_next.addr[_J_BITS:] ^ g),
-                wp.data.eq(lk_next.data),
-                wp.en.eq(we),
-                rp.addr.eq(k_copy[g]),
-                mul.ce.eq(1),
-            ]
+            m.d.comb += mul.ce.eq(1)
             # stage 2: the operands in fabric registers, one pair per multiplier, which the
             # placer can put by its DSP (a window register feeds up to `lanes` DSPs of
             # different lanes, spread over the device's DSP rows)
             a_pre = Signal(STITCHED, name=f"a{p}_{j}")
             b_pre = Signal(signed(COEF_WIDTH), name=f"b{p}_{j}")
-            m.d.sync += [a_pre.eq(Mux(mask_op[j], operand_w[p + j], 0)), b_pre.eq(rp.data)]
+            m.d.sync += [a_pre.eq(Mux(mask_op[j], operand_w[p + j], 0)), b_pre.eq(coef)]
             m.d.comb += [mul.a.eq(a_pre), mul.b.eq(b_pre)]
             prods.append(mul.p)
         levels = _tree(m, prods, f"l{p}")
