@@ -208,9 +208,14 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     prod_tag = _delay(m, noise_tag, 3, "prod_tag")[-1]
     thr = Signal(THR_WIDTH)
     with m.If(prod_new):
+        # max(min_thr, prod >> 4): prod >> 4 is the larger wherever it has a bit above
+        # min_thr's width, so the subtraction spans min_thr's 24 bits and the high bits are
+        # an OR beside it (the 34-bit chain and the select behind it were the detector's
+        # worst path alone in context, 5.9 ns on seeds 2 and 3)
         prod_thr = prod >> 4
-        m.d.sync += thr.eq(Mux(_sub_sign(m, cfg.min_thr, prod_thr, "thr_floor"), prod_thr,
-                               cfg.min_thr))
+        w = len(cfg.min_thr)
+        above = prod_thr[w:].any() | _sub_sign(m, cfg.min_thr, prod_thr[:w], "thr_floor")
+        m.d.sync += thr.eq(Mux(above, prod_thr, cfg.min_thr))
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
     # each lane makes one 24-bit compare
     # (the sum, then the cap a clock later)
