@@ -39,6 +39,7 @@ from .matched_filter import (
     _coef_chain,
     _coef_memory,
     _flow_control,
+    _out_shift,
     _round_saturate,
     _saturation_bounds,
     filter_out_layout,
@@ -311,9 +312,10 @@ def elaborate(mf, platform) -> Module:
     out_layout = filter_out_layout(P)
     pipe = Signal(out_layout)  # the pipeline's last stage
     ys = [pipe.y] if P == 1 else [pipe.y[p] for p in range(P)]
-    over_at, under_at = _saturation_bounds(m, cfg.out_shift, len(accs[0]))
+    sh = _out_shift(m, cfg)
+    over_at, under_at = _saturation_bounds(m, sh, len(accs[0]))
     for p in range(P):
-        _round_saturate(m, accs[p], cfg.out_shift, over_at, under_at, ys[p], f"o{p}_",
+        _round_saturate(m, accs[p], sh, over_at, under_at, ys[p], f"o{p}_",
                         split=True)
 
     # side band of each stage: valid, per-lane k, count, first, last

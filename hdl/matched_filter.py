@@ -202,6 +202,16 @@ def _flow_control(m: Module, c, capacity: int, hold_nx=None, decoded: bool = Fal
 _Y_LO, _Y_HI = -(1 << (OUT_WIDTH - 1)), (1 << (OUT_WIDTH - 1)) - 1
 
 
+def _out_shift(m: Module, cfg):
+    """``out_shift`` through a register of the filter's own, for the shift and its bounds.
+
+    In the device the port is a register of the link, and the bounds' decode of it is three
+    LUTs: read from the port, that was the one-lane pipeline's worst path on seed 2 (6.8 ns,
+    5.3 of it routing, thirty-fourth session). So ``out_shift`` acts a clock after it is
+    written (it is written between frames)."""
+    return _reg(m, cfg.out_shift, cfg.out_shift.shape(), "out_shift_q", True)
+
+
 def _saturation_bounds(m: Module, sh, acc_width: int):
     """``(over_at, under_at)``, registered from ``sh``: ``y`` saturates high when
     ``acc >= over_at``, low when ``acc < under_at``."""
@@ -518,8 +528,9 @@ class MatchedFilter(wiring.Component):
     Known failure modes: a surface that arrives too late (its switch sample already accepted)
     leaves template 0 for the rest of the frame. Register changes act on samples accepted from
     the next clock on (``bin_len`` at the first bin that starts on a sample accepted a clock
-    after that, as bins are counted down from it; ``out_shift`` from the shift stage on, its
-    saturation bounds a clock before). Coefficients are read two clocks after a sample is
+    after that, as bins are counted down from it; ``out_shift`` at the shift stage a clock
+    after it is written, through a register of the filter's own, its saturation bounds a
+    clock after that). Coefficients are read two clocks after a sample is
     accepted, ``taps`` one clock after: write the bank and change ``taps`` between frames, with
     the pipeline's first stages empty. Frames longer than ``2^N_WIDTH - 1`` samples wrap the
     sample counter.
@@ -803,7 +814,7 @@ class MatchedFilter(wiring.Component):
         acc = level[0]
         # ---- stages 13, 14: the shift (in two parts) and the saturation compares, stage 15:
         # round half up and saturate (see _round_saturate) ----
-        sh = cfg.out_shift
+        sh = _out_shift(m, cfg)
         over_at, under_at = _saturation_bounds(m, sh, len(acc))
 
         m.d.sync += [
