@@ -304,21 +304,25 @@ class Gate(wiring.Component):
         # says. They are written to the memories whether admitted or not, if there is room for
         # one entry (`one_q`, `hroom_q`), so that the memories' write enables need not wait for
         # the admission: what is not kept is overwritten by the next write.
-        fit = Signal()  # the frame's samples and header fit, with no sample write pending
+        fit = Signal()  # the frame's samples fit, with no sample write pending
         fit_m1 = Signal()  # ... with a sample write pending
         hroom_q = Signal()  # its header fits
         one_q = Signal()  # one sample fits
         first_q = Signal()  # the last clock took a frame's first sample
         single_q = Signal()  # ... which was also its last (a 1-sample frame)
         wr_q = Signal()  # a sample write was pending then
-        admit = Mux(wr_q, fit_m1, fit)
-        wr = w_en | (first_q & admit)  # four inputs: one LUT
+        # (the header room joins at the admission, from its register, not inside `fit`:
+        # there it closed a loop of four LUTs, `wr_q` -> `admit` -> `hwr` -> `hroom` ->
+        # `fit`, with two 2-ns routes to the header store and back, the one-lane pipeline's
+        # worst path on seed 3, 7.7 ns, thirty-fourth session)
+        admit = Mux(wr_q, fit_m1, fit) & hroom_q
+        wr = w_en | (first_q & admit)
         hwr = hw_en | (single_q & admit)
         hroom = hnz & ~(hwr & hone)
         keep_now = Mux(first_q, admit, keep)  # for the samples after the first
         m.d.sync += [
-            fit.eq(Mux(busy, _le(h.length, free), _le(length, free)) & hroom),
-            fit_m1.eq(Mux(busy, _le(h.length, free_m1), _le(length, free_m1)) & hroom),
+            fit.eq(Mux(busy, _le(h.length, free), _le(length, free))),
+            fit_m1.eq(Mux(busy, _le(h.length, free_m1), _le(length, free_m1))),
             hroom_q.eq(hroom),
             one_q.eq(Mux(wr, free_m1 > 0, free != 0)),
             # = step & first, with `fresh0` rather than three flags and `gate_delay` == 0
