@@ -312,17 +312,12 @@ def _coef_chain(m: Module, coef, groups: int, read_after: int = 2):
     # a + read_after - 1 and sees the writes up to that edge, so it needs a >= e + groups:
     # none is accepted at e + 1 .. e + groups - 1. `full` is set at the edge after one where
     # hold_nx is high: at e by coef.valid, then at e + 1 .. e + groups - 2 by `left`.
-    # `many` (left > 1) is a register beside `left`, so that the hold is one LUT of two
-    # registers: since the chain took a link more than the groups (`_coef_memory`), `left`
-    # is a bit wider, and its compare in the hold put a LUT more before `full` (the one-lane
-    # pipeline's worst path on seed 1, `full` -> four LUTs -> `full`, 7.45 ns)
     left = Signal(range(max(2, groups)))
-    many = Signal()
     with m.If(coef.valid):
-        m.d.sync += [left.eq(groups - 1), many.eq(groups - 1 > 1)]
+        m.d.sync += left.eq(groups - 1)
     with m.Elif(left != 0):
-        m.d.sync += [left.eq(left - 1), many.eq(left > 2)]
-    return links, coef.valid | many
+        m.d.sync += left.eq(left - 1)
+    return links, coef.valid | (left > 1)
 
 
 def _coef_memory(m: Module, name: str, links, link: int, j: int, g: int, read_addr):
