@@ -179,8 +179,9 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, d
     d2 = _reg(m, d2a, beat, "d2")
     d2_valid = _reg(m, d2a_valid, 1, "d2_valid")
     d2_peak, d2_speak = Signal(L), Signal(L)
-    speak = [reduce(and_, tests[j]) & s_tests[j] for j in range(L)]
-    m.d.sync += [d2_peak[j].eq(reduce(and_, tests[j])) for j in range(L)]
+    peak = [reduce(and_, tests[j]) for j in range(L)]
+    speak = [peak[j] & s_tests[j] for j in range(L)]
+    m.d.sync += [d2_peak[j].eq(peak[j]) for j in range(L)]
     m.d.sync += [d2_speak[j].eq(speak[j]) for j in range(L)]
     # the first surface peak of the beat, one-hot, in a register of its own beside d2_speak:
     # D3 then only selects with it (the priority and the 10-way select of d2_cpos in D3's
