@@ -422,11 +422,15 @@ def _bottom(m, rule, L, rec, bt, last_c, long_c, vd, win, node):
     c_rec = _reg(m, reduce(or_, [Mux(idx_oh[j], r, 0) for j, r in enumerate(recs)]), rec,
                  "c_rec")
     # the record's rise: rule 2's key (the winner's, registered beside c_rec), saturated to
-    # u16 from a register (the key's high bits) at C, not before the tree's compare
-    rise_k = _reg(m, Mux(rule[2], win.key, 0), _KEY, "c_rise_key")
+    # u16 at C, not before the tree's compare: its low bits and whether any high bit is set
+    # are registered from win_b2 (the OR of the high bits at C, two LUTs before the
+    # saturation and b_fin's choice, was the detector's worst path alone on seed 3, 5.5 ns)
     w = _RISE.width
+    key2 = Mux(rule[2], win.key, 0)
+    rise_k = _reg(m, key2[:w], w, "c_rise_key")
+    rise_hi = _reg(m, key2[w:].any(), 1, "c_rise_hi")
     c_rise = Signal(_RISE, name="c_rise")
-    m.d.comb += c_rise.eq(Mux(rise_k[w:].any(), (1 << w) - 1, rise_k[:w]))
+    m.d.comb += c_rise.eq(Mux(rise_hi, (1 << w) - 1, rise_k))
     c_full = Signal(rec, name="c_full")
     m.d.comb += [c_full.eq(c_rec), c_full.rise.eq(c_rise)]
     c_rec = c_full

@@ -195,26 +195,34 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         m.d.sync += noise.eq(noise_full)
     noise_new = _reg(m, full_new, 1, "noise_new")
     noise_tag = _delay(m, dev_tag, 2, "noise_tag")[-1]
-    # k_thr_q4 * noise: the DSP blocks' own registers, two clocks, then the partial sum
+    # k_thr_q4 * noise: the DSP blocks' own registers, two clocks, then the partial sum. The
+    # blocks read `noise_full`, the value `noise` loads, a clock before `noise` holds it: the
+    # product is then ready a clock early, and that clock goes to the floor's compare below.
     k_shape_s = signed(len(cfg.k_thr_q4) + 1)
     mul_lo = m.submodules.thr_mul_lo = RegisteredMultiplier(k_shape_s, signed(_LO_BITS + 1))
     mul_hi = m.submodules.thr_mul_hi = RegisteredMultiplier(
         k_shape_s, signed(NOISE_WIDTH - _LO_BITS + 1))
-    m.d.comb += [mul_lo.a.eq(cfg.k_thr_q4), mul_lo.b.eq(noise[:_LO_BITS]), mul_lo.ce.eq(1),
-                 mul_hi.a.eq(cfg.k_thr_q4), mul_hi.b.eq(noise[_LO_BITS:]), mul_hi.ce.eq(1)]
+    m.d.comb += [mul_lo.a.eq(cfg.k_thr_q4), mul_lo.b.eq(noise_full[:_LO_BITS]),
+                 mul_lo.ce.eq(1), mul_hi.a.eq(cfg.k_thr_q4),
+                 mul_hi.b.eq(noise_full[_LO_BITS:]), mul_hi.ce.eq(1)]
     prod = _reg(m, mul_lo.p + (mul_hi.p << _LO_BITS),
                 unsigned(len(cfg.k_thr_q4) + NOISE_WIDTH), "prod")
     prod_new = _delay(m, noise_new, 3, "prod_new")[-1]
     prod_tag = _delay(m, noise_tag, 3, "prod_tag")[-1]
     thr = Signal(THR_WIDTH)
+    # max(min_thr, prod >> 4) over two clocks, the compare in the first (`prod` holds the
+    # product a clock before `prod_new`, see above) and the choice in the second: prod >> 4
+    # is the larger wherever it has a bit above min_thr's width, so the subtraction spans
+    # min_thr's 24 bits and the high bits are an OR beside it (the 34-bit chain and the
+    # select behind it were the detector's worst path alone in context, 5.9 ns on seeds 2
+    # and 3, thirty-fourth session; the 24-bit chain and the select, 5.5-6.2 ns on all three
+    # seeds, thirty-fifth)
+    prod_thr = prod >> 4
+    w = len(cfg.min_thr)
+    above = _reg(m, prod_thr[w:].any() | _sub_sign(m, cfg.min_thr, prod_thr[:w], "thr_floor"),
+                 1, "thr_above")
+    prod_thr = _reg(m, prod_thr, len(prod_thr), "thr_prod")
     with m.If(prod_new):
-        # max(min_thr, prod >> 4): prod >> 4 is the larger wherever it has a bit above
-        # min_thr's width, so the subtraction spans min_thr's 24 bits and the high bits are
-        # an OR beside it (the 34-bit chain and the select behind it were the detector's
-        # worst path alone in context, 5.9 ns on seeds 2 and 3)
-        prod_thr = prod >> 4
-        w = len(cfg.min_thr)
-        above = prod_thr[w:].any() | _sub_sign(m, cfg.min_thr, prod_thr[:w], "thr_floor")
         m.d.sync += thr.eq(Mux(above, prod_thr, cfg.min_thr))
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
     # each lane makes one 24-bit compare

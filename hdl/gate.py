@@ -33,7 +33,7 @@ __all__ = ["DROP_BITS", "LATENCY", "Gate"]
 
 #: Clocks from an input sample to the same sample on ``o`` (FIFO empty, ``o.ready`` high); the
 #: header of a frame becomes valid this many clocks after its last sample entered.
-LATENCY = 4
+LATENCY = 5
 #: Width of the saturating dropped-frame counter.
 DROP_BITS = 16
 
@@ -97,9 +97,9 @@ class Gate(wiring.Component):
 
     Notes
     -----
-    Latency: :data:`LATENCY` = 4 clocks from an input sample to it on ``o`` when the FIFO is
-    empty and ``o.ready`` high (the sample register, the memory write, and the two read
-    registers of the block RAM); one sample per clock sustained.
+    Latency: :data:`LATENCY` = 5 clocks from an input sample to it on ``o`` when the FIFO is
+    empty and ``o.ready`` high (the sample register, the write register, the memory write,
+    and the two read registers of the block RAM); one sample per clock sustained.
 
     The registers (``cfg``) and ``bank_id`` act from the clock after they are written: the
     gate reads them, and what it makes of them, from registers of its own, so that no path in
@@ -279,16 +279,25 @@ class Gate(wiring.Component):
                 h_now.bank_id.eq(bank_id),
             ]
 
-        # Room in the FIFOs, counted here rather than read from their `level`: `free` is depth
-        # - entries held, taking a write off at the clock it is made and a read at the clock it
-        # happens; `free_m1` (= free - 1) is kept beside it, updated from itself.
+        # Room in the FIFOs, counted here rather than read from their `level`, a clock behind
+        # the writes: `lfree` is depth - entries held, counting a write decided at one clock
+        # from the next (through `wr_q`) and a read at the clock it happens; so the room
+        # after the writes decided up to the last clock, `free`, is `lfree - wr_q`, and after
+        # this clock's too, `lfree - wr_q - wr`. With the count a clock behind, the decision
+        # of a write (`wr`, from the admission) no longer reaches the count's registers: it
+        # went to the enables of all of `free`'s and `free_m1`'s, and that path (`wr_q` ->
+        # `admit` -> `wr` -> `free`'s enable, 6.8 ns) was the one-lane pipeline's worst on
+        # seed 2 (thirty-fourth session). `lfree_m1` .. `lfree_m3` (= lfree - 1 .. - 3) are
+        # kept beside it, updated from themselves; the headers likewise (`hlfree_m*`).
         w_en = Signal()  # a sample write decided at the last clock (not a frame's first)
         hw_en = Signal()  # a header write, likewise
-        free = Signal(range(self.depth + 1), init=self.depth)
-        free_m1 = Signal(range(-1, self.depth + 1), init=self.depth - 1)
-        hfree = Signal(range(self.header_depth + 1), init=self.header_depth)
-        hnz = Signal(init=1)  # hfree != 0
-        hone = Signal(init=self.header_depth == 1)  # hfree == 1
+        lfree = Signal(range(self.depth + 1), init=self.depth)
+        lfree_m1 = Signal(range(-1, self.depth + 1), init=self.depth - 1)
+        lfree_m2 = Signal(range(-2, self.depth + 1), init=self.depth - 2)
+        lfree_m3 = Signal(range(-3, self.depth + 1), init=self.depth - 3)
+        # (the header count is kept only as hlfree - 1 .. - 3: its room is their signs)
+        hlfree_m = [Signal(range(-v, self.header_depth + 1), init=self.header_depth - v,
+                           name=f"hlfree_m{v}") for v in (1, 2, 3)]
         rd = self.o.valid & self.o.ready
         hrd = self.header.valid & self.header.ready
         kept = (busy | start) & cur_wait0
@@ -298,37 +307,48 @@ class Gate(wiring.Component):
         # Admission, decided at the clock after a frame's first sample, from registers: the
         # compares of that sample's clock, with the frame's length (the latched one, or the
         # live one on a trigger clock, as gate_len may be written on that very clock) against
-        # `free` and `free_m1` and the header room, registered as they are; the write then
-        # pending (`wr_q`) chooses between them. The first sample, and the header of a
-        # 1-sample frame, are kept at that clock if the frame is admitted; from then on `keep`
-        # says. They are written to the memories whether admitted or not, if there is room for
-        # one entry (`one_q`, `hroom_q`), so that the memories' write enables need not wait for
-        # the admission: what is not kept is overwritten by the next write.
-        fit = Signal()  # the frame's samples fit, with no sample write pending
-        fit_m1 = Signal()  # ... with a sample write pending
+        # `lfree`, `lfree_m1` and `lfree_m2`, registered as they are; the writes decided at
+        # that clock and the one before (`wr_q`, `wr_q2`), which the count did not hold yet,
+        # choose among them. The first sample, and the header of a 1-sample frame, are kept
+        # at that clock if the frame is admitted; from then on `keep` says. They are written
+        # to the memories whether admitted or not, if there is room for one entry (`one_q`,
+        # `hroom_q`), so that the memories' write enables need not wait for the admission:
+        # what is not kept is overwritten by the next write.
+        fits = [Signal(name=f"fit{i}") for i in range(3)]  # ... with i writes not counted
         hroom_q = Signal()  # its header fits
         one_q = Signal()  # one sample fits
         first_q = Signal()  # the last clock took a frame's first sample
         single_q = Signal()  # ... which was also its last (a 1-sample frame)
-        wr_q = Signal()  # a sample write was pending then
-        # (the header room joins at the admission, from its register, not inside `fit`:
+        wr_q, wr_q2 = Signal(), Signal()  # a sample write decided one, two clocks ago
+        hwr_q = Signal()  # a header write decided one clock ago
+        # (the header room joins at the admission, from its register, not inside the fits:
         # there it closed a loop of four LUTs, `wr_q` -> `admit` -> `hwr` -> `hroom` ->
         # `fit`, with two 2-ns routes to the header store and back, the one-lane pipeline's
         # worst path on seed 3, 7.7 ns, thirty-fourth session)
-        admit = Mux(wr_q, fit_m1, fit) & hroom_q
+        admit = Mux(wr_q, Mux(wr_q2, fits[2], fits[1]), Mux(wr_q2, fits[1], fits[0])) & hroom_q
         wr = w_en | (first_q & admit)
         hwr = hw_en | (single_q & admit)
-        hroom = hnz & ~(hwr & hone)
-        keep_now = Mux(first_q, admit, keep)  # for the samples after the first
+        # the header room after this clock's write: hlfree - hwr_q - hwr >= 1, from the sign
+        # bits of hlfree - 1 .. - 3 (as `one_q` below)
+        hl_neg = [v[-1] for v in hlfree_m]
+        hroom = ~Mux(hwr_q, Mux(hwr, hl_neg[2], hl_neg[1]), Mux(hwr, hl_neg[1], hl_neg[0]))
         m.d.sync += [
-            fit.eq(Mux(busy, _le(h.length, free), _le(length, free))),
-            fit_m1.eq(Mux(busy, _le(h.length, free_m1), _le(length, free_m1))),
+            # (two carry chains and a choice after them: `busy` choosing the length before
+            # the chain put its LUT in front of the carries, the gate's worst path alone)
+            [fit.eq(Mux(busy, _le(h.length, v), _le(length, v)))
+             for fit, v in zip(fits, (lfree, lfree_m1, lfree_m2), strict=True)],
             hroom_q.eq(hroom),
-            one_q.eq(Mux(wr, free_m1 > 0, free != 0)),
+            # room for one sample after this clock's write: lfree - wr_q - wr >= 1, i.e.
+            # lfree - 1 - wr_q - wr >= 0, the sign bits of the registers (compares of the
+            # counts were two LUTs before the choice: lfree -> one_q, 6.5 ns, the pipeline's
+            # worst path on seed 1 with this count)
+            one_q.eq(~Mux(wr_q, Mux(wr, lfree_m3[-1], lfree_m2[-1]),
+                          Mux(wr, lfree_m2[-1], lfree_m1[-1]))),
             # = step & first, with `fresh0` rather than three flags and `gate_delay` == 0
             first_q.eq(step & Mux(busy, fresh0, p.trigger & no_delay)),
-            single_q.eq(step & first & last), wr_q.eq(wr),
+            single_q.eq(step & first & last), wr_q.eq(wr), wr_q2.eq(wr_q), hwr_q.eq(hwr),
         ]
+        keep_now = Mux(first_q, admit, keep)  # for the samples after the first
         with m.If(first_q):
             m.d.sync += keep.eq(admit)
         # The refused frames, counted a clock after the decision, off its paths.
@@ -387,23 +407,32 @@ class Gate(wiring.Component):
             hw_data.eq(h_now),
             hw_en.eq(step & busy & wait0 & ~fresh & left1 & keep_now),
         ]
-        # The writes come last (a LUT or two after the decision registers), so the counts
-        # step by `_step`, and the header-room flags follow the cases (hfree == 2 from the
-        # register) rather than a compare of a sum.
+        # The counts step by `_step` from the writes of the last clock (registers) and this
+        # clock's reads. The memories take each write a clock after its decision, from
+        # registers (`w_q`, `hw_q`: data, enable, keep), so that the decision reaches no
+        # store's pointer either: it fans out to the flags above and these registers only.
         m.d.sync += [
-            free.eq(_step(free, rd, wr)),
-            free_m1.eq(_step(free_m1, rd, wr)),
-            hfree.eq(_step(hfree, hrd, hwr)),
-            hnz.eq(Mux(hwr, Mux(hrd, hnz, ~hone), hnz | hrd)),
-            hone.eq(Mux(hwr == hrd, hone, Mux(hrd, ~hnz, hfree == 2))),
+            lfree.eq(_step(lfree, rd, wr_q)),
+            lfree_m1.eq(_step(lfree_m1, rd, wr_q)),
+            lfree_m2.eq(_step(lfree_m2, rd, wr_q)),
+            lfree_m3.eq(_step(lfree_m3, rd, wr_q)),
+            [v.eq(_step(v, hrd, hwr_q)) for v in hlfree_m],
+        ]
+        w_q = Signal(data.w_data.shape(), name="w_q")
+        hw_q = Signal(hdrs.w_data.shape(), name="hw_q")
+        we_q, keep_q, hwe_q, hkeep_q = (Signal(name=n) for n in ("we_q", "keep_q", "hwe_q",
+                                                                 "hkeep_q"))
+        m.d.sync += [
+            w_q.eq(beat), we_q.eq(w_en | (first_q & one_q)), keep_q.eq(wr),
+            hw_q.eq(hw_data), hwe_q.eq(hw_en | (single_q & hroom_q)), hkeep_q.eq(hwr),
         ]
         m.d.comb += [
-            data.w_data.eq(beat),
-            data.w_en.eq(w_en | (first_q & one_q)),
-            data.w_keep.eq(wr),
-            hdrs.w_data.eq(hw_data),
-            hdrs.w_en.eq(hw_en | (single_q & hroom_q)),
-            hdrs.w_keep.eq(hwr),
+            data.w_data.eq(w_q),
+            data.w_en.eq(we_q),
+            data.w_keep.eq(keep_q),
+            hdrs.w_data.eq(hw_q),
+            hdrs.w_en.eq(hwe_q),
+            hdrs.w_keep.eq(hkeep_q),
             # Output side: plain FIFO reads.
             self.o.payload.eq(data.r.payload),
             self.o.valid.eq(data.r.valid),
