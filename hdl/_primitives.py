@@ -293,9 +293,7 @@ class _Store(wiring.Component):
         ram = m.submodules.ram = BlockRAM(self.width, size, self.max_banks)
         w_ptr = Signal(range(size))
         r_ptr = Signal(range(size))
-        # entries in the memory (read stages not), less two: kept so because only "two or
-        # more" is read, and that is then the register's sign bit
-        count_m2 = Signal(range(-2, self.depth + 1), init=-2)
+        count = Signal(range(self.depth + 1))  # entries in the memory (read stages not)
         ne = Signal()  # count != 0
         v1 = Signal()  # the first read stage holds an entry
         move = v1 & (~self.r.valid | self.r.ready)  # first stage -> output register
@@ -325,13 +323,10 @@ class _Store(wiring.Component):
             m.d.sync += self.r.valid.eq(1)
         with m.Elif(self.r.ready):
             m.d.sync += self.r.valid.eq(0)
-        # count >= 2 is the sign of the register count - 2 (a compare `count != 1` became a
-        # tree of LUTs, the gate's worst path at 188.5 MHz; `count - 2`'s sign a carry chain
-        # before the choice, the packetizer FIFO's count -> `ne`, 6.0 ns, the one-lane
-        # pipeline's worst path on seed 2 in the thirty-fifth session)
-        ne_nx = keep | Mux(take_c, ~count_m2[-1], ~empty)
-        m.d.sync += [count_m2.eq(_step(count_m2, keep, take_c)), ne.eq(ne_nx),
-                     empty.eq(~ne_nx),
+        # count >= 2 as the sign of count - 2: a carry chain from the register (a compare
+        # `count != 1` became a tree of LUTs, the gate's worst path at 188.5 MHz)
+        ne_nx = keep | Mux(take_c, _le(2, count), ~empty)
+        m.d.sync += [count.eq(_step(count, keep, take_c)), ne.eq(ne_nx), empty.eq(~ne_nx),
                      idle1.eq(~take_c & (idle1 | move_c)),
                      idle.eq(idle1 & free_o)]  # = ~move_c & free_o
         return m
