@@ -66,8 +66,8 @@ class Gate(wiring.Component):
         frame longer than ``depth`` is always dropped.
     header_depth : int, >= 1
         Header FIFO entries, i.e. frames that can wait for the consumer at once. A header is
-        counted from its admission until it is taken, 5 clocks at the least, so back-to-back
-        1-sample frames need 5 or more even with a consumer always ready.
+        counted from its admission until it is taken, 6 clocks at the least, so back-to-back
+        1-sample frames need 6 or more even with a consumer always ready.
     fine_start, coarse_start, shot_start : int
         Reset values of the counters, for tests only: they let a bench reach the 2^24 and 2^16
         limits in a few clocks. A ``fine_start`` of ``f`` is the state ``f * fine_div`` clocks

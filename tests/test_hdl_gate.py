@@ -28,10 +28,12 @@ FINE_MAX = (1 << FINE_BITS) - 1
 #: Counter start values of the "limits" build: each limit is reached within a few frames.
 LIMITS = {"fine_start": FINE_MAX - 13, "coarse_start": (1 << COARSE_BITS) - 3,
           "shot_start": (1 << SHOT_BITS) - 5}
-# 5 headers: back-to-back 1-sample frames keep that many in flight with a ready consumer (a
-# header is counted from the clock after its admission to its read: write, the store's two read
-# stages and its output, plus the admission's look-ahead)
-SMALL = {"depth": 64, "header_depth": 5}
+# 6 headers: back-to-back 1-sample frames keep that many in flight with a ready consumer (a
+# header is counted from the clock after its admission to its read: the write register, the
+# write, the store's two read stages and its output, plus the admission's look-ahead;
+# `test_header_depth_bound`)
+HEADERS_IN_FLIGHT = 6
+SMALL = {"depth": 64, "header_depth": HEADERS_IN_FLIGHT}
 
 
 @dataclass
@@ -267,6 +269,19 @@ class TestAmaranthSim:
         assert len(res.sinks["o"]["x"]) == 0  # the consumer never took anything
         assert res.watch["dropped"] == 5 - len(admitted)
         assert res.sources["i"]["stalls"] == 0
+
+    @pytest.mark.parametrize("header_depth", [HEADERS_IN_FLIGHT - 1, HEADERS_IN_FLIGHT])
+    def test_header_depth_bound(self, header_depth):
+        """1-sample frames on every clock into a consumer always ready: the bound of the
+        docstring (``header_depth``) is exact, one header less drops frames."""
+        sc = Scenario([Segment(cfg(gate_len=1, gate_delay=0), 80, triggers=list(range(70)))])
+        res = simulate(Gate(depth=64, header_depth=header_depth), **sc.traffic())
+        if header_depth >= HEADERS_IN_FLIGHT:
+            assert res.watch["dropped"] == 0
+            check(res, sc)
+        else:
+            assert res.watch["dropped"] > 0
+            check(res, sc, drops=True)
 
     def test_drops_are_whole_frames(self):
         sc = Scenario([Segment(cfg(gate_len=5, gate_delay=1), 400,
