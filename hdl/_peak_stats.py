@@ -221,9 +221,9 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     w = len(cfg.min_thr)
     above = _reg(m, prod_thr[w:].any() | _sub_sign(m, cfg.min_thr, prod_thr[:w], "thr_floor"),
                  1, "thr_above")
-    prod_thr = _reg(m, prod_thr, len(prod_thr), "thr_prod")
+    prod_thr_q = _reg(m, prod_thr, len(prod_thr), "thr_prod")
     with m.If(prod_new):
-        m.d.sync += thr.eq(Mux(above, prod_thr, cfg.min_thr))
+        m.d.sync += thr.eq(Mux(above, prod_thr_q, cfg.min_thr))
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
     # each lane makes one 24-bit compare
     # (the sum, then the cap a clock later)

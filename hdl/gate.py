@@ -46,6 +46,20 @@ for _name, _bits in (("fine_time", FINE_BITS), ("coarse_event", COARSE_BITS), ("
     assert FRAME_HEADER[_name].bits >= _bits, (_name, _bits)
 
 
+def _by_pending(a, b, values):
+    """``values[a + b]`` for one-bit ``a``, ``b`` (writes not yet in a count), as two levels
+    of muxes: the late inputs choose among registers."""
+    return Mux(a, Mux(b, values[2], values[1]), Mux(b, values[1], values[0]))
+
+
+def _count_less(top: int, offsets, name: str) -> list:
+    """Registers holding a count less each of ``offsets``, starting at ``top - v``: a count
+    and its offsets stepped side by side, so that its compares with small constants are sign
+    bits of registers."""
+    return [Signal(range(-v, top + 1), init=top - v, name=f"{name}_m{v}" if v else name)
+            for v in offsets]
+
+
 def _check(name, value, lo, hi):
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
         raise ValueError(f"{name} must be an integer in {lo}..{hi}, not {value!r}")
@@ -214,12 +228,13 @@ class Gate(wiring.Component):
             # set/reset, three LUTs from `line_sync` into its LSR: the one-lane pipeline's
             # worst path on seed 3 (6.6 ns, thirty-fifth session). As data, one LUT.
             m.d.sync += renew.eq(tick)
-            with m.If(~tick & period):
-                m.d.sync += [rem.eq(div_m2), rem0.eq(div2)]
-            with m.Elif(~tick):
-                # here rem >= 1 (rem0 is clear), so rem == 1 is rem <= 1: a carry chain's
-                # sign, not a tree of LUTs over the whole width
-                m.d.sync += [rem.eq(rem - 1), rem0.eq(_le(rem, 1))]
+            with m.If(~tick):
+                with m.If(period):
+                    m.d.sync += [rem.eq(div_m2), rem0.eq(div2)]
+                with m.Else():
+                    # here rem >= 1 (rem0 is clear), so rem == 1 is rem <= 1: a carry
+                    # chain's sign, not a tree of LUTs over the whole width
+                    m.d.sync += [rem.eq(rem - 1), rem0.eq(_le(rem, 1))]
         # The fine counter's restart on a line sync comes first, outside the other updates,
         # so that Yosys makes it the flip-flops' own reset over their enable (LSR = step &
         # sync, one LUT of two registers), and the tick it tests is `div_le1` there and
@@ -295,13 +310,9 @@ class Gate(wiring.Component):
         # kept beside it, updated from themselves; the headers likewise (`hlfree_m*`).
         w_en = Signal()  # a sample write decided at the last clock (not a frame's first)
         hw_en = Signal()  # a header write, likewise
-        lfree = Signal(range(self.depth + 1), init=self.depth)
-        lfree_m1 = Signal(range(-1, self.depth + 1), init=self.depth - 1)
-        lfree_m2 = Signal(range(-2, self.depth + 1), init=self.depth - 2)
-        lfree_m3 = Signal(range(-3, self.depth + 1), init=self.depth - 3)
+        lfree = _count_less(self.depth, range(4), "lfree")  # lfree, lfree - 1 .. - 3
         # (the header count is kept only as hlfree - 1 .. - 3: its room is their signs)
-        hlfree_m = [Signal(range(-v, self.header_depth + 1), init=self.header_depth - v,
-                           name=f"hlfree_m{v}") for v in (1, 2, 3)]
+        hlfree_m = _count_less(self.header_depth, (1, 2, 3), "hlfree")
         rd = self.o.valid & self.o.ready
         hrd = self.header.valid & self.header.ready
         kept = (busy | start) & cur_wait0
@@ -329,25 +340,23 @@ class Gate(wiring.Component):
         # there it closed a loop of four LUTs, `wr_q` -> `admit` -> `hwr` -> `hroom` ->
         # `fit`, with two 2-ns routes to the header store and back, the one-lane pipeline's
         # worst path on seed 3, 7.7 ns, thirty-fourth session)
-        admit = Mux(wr_q, Mux(wr_q2, fits[2], fits[1]), Mux(wr_q2, fits[1], fits[0])) & hroom_q
+        admit = _by_pending(wr_q, wr_q2, fits) & hroom_q
         wr = w_en | (first_q & admit)
         hwr = hw_en | (single_q & admit)
         # the header room after this clock's write: hlfree - hwr_q - hwr >= 1, from the sign
         # bits of hlfree - 1 .. - 3 (as `one_q` below)
-        hl_neg = [v[-1] for v in hlfree_m]
-        hroom = ~Mux(hwr_q, Mux(hwr, hl_neg[2], hl_neg[1]), Mux(hwr, hl_neg[1], hl_neg[0]))
+        hroom = ~_by_pending(hwr_q, hwr, [v[-1] for v in hlfree_m])
         m.d.sync += [
             # (two carry chains and a choice after them: `busy` choosing the length before
             # the chain put its LUT in front of the carries, the gate's worst path alone)
             [fit.eq(Mux(busy, _le(h.length, v), _le(length, v)))
-             for fit, v in zip(fits, (lfree, lfree_m1, lfree_m2), strict=True)],
+             for fit, v in zip(fits, lfree[:3], strict=True)],
             hroom_q.eq(hroom),
             # room for one sample after this clock's write: lfree - wr_q - wr >= 1, i.e.
             # lfree - 1 - wr_q - wr >= 0, the sign bits of the registers (compares of the
             # counts were two LUTs before the choice: lfree -> one_q, 6.5 ns, the pipeline's
             # worst path on seed 1 with this count)
-            one_q.eq(~Mux(wr_q, Mux(wr, lfree_m3[-1], lfree_m2[-1]),
-                          Mux(wr, lfree_m2[-1], lfree_m1[-1]))),
+            one_q.eq(~_by_pending(wr_q, wr, [v[-1] for v in lfree[1:]])),
             # = step & first, with `fresh0` rather than three flags and `gate_delay` == 0
             first_q.eq(step & Mux(busy, fresh0, p.trigger & no_delay)),
             single_q.eq(step & first & last), wr_q.eq(wr), wr_q2.eq(wr_q), hwr_q.eq(hwr),
@@ -416,10 +425,7 @@ class Gate(wiring.Component):
         # registers (`w_q`, `hw_q`: data, enable, keep), so that the decision reaches no
         # store's pointer either: it fans out to the flags above and these registers only.
         m.d.sync += [
-            lfree.eq(_step(lfree, rd, wr_q)),
-            lfree_m1.eq(_step(lfree_m1, rd, wr_q)),
-            lfree_m2.eq(_step(lfree_m2, rd, wr_q)),
-            lfree_m3.eq(_step(lfree_m3, rd, wr_q)),
+            [v.eq(_step(v, rd, wr_q)) for v in lfree],
             [v.eq(_step(v, hrd, hwr_q)) for v in hlfree_m],
         ]
         w_q = Signal(data.w_data.shape(), name="w_q")
