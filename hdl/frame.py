@@ -25,7 +25,7 @@ from __future__ import annotations
 from functools import reduce
 from operator import or_
 
-from amaranth.hdl import Cat, Const, Module, Mux, ResetInserter, Signal, signed, unsigned
+from amaranth.hdl import Cat, Const, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -43,11 +43,12 @@ from model.matched_filter import OUT_WIDTH
 from model.registers import by_name
 
 from ._bram import DEEPEST, BlockRAM
+from ._crc import SplitCRC
 from ._primitives import OneHotFSM, _le, _step, _Store
 from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
 from .peak_detect import PEAK_RESULT
 
-__all__ = ["BYTE", "COUNT_BITS", "PACK_IN", "FramePacketizer", "packet_cycles"]
+__all__ = ["BYTE", "COUNT_BITS", "CRC_WAIT", "PACK_IN", "FramePacketizer", "packet_cycles"]
 
 #: A byte of the packet stream; ``last`` marks the last byte (the CRC's top byte) of a packet.
 BYTE = data.StructLayout({"data": unsigned(8), "last": unsigned(1)})
@@ -79,16 +80,21 @@ _HDR = FRAME_HEADER.size
 GATE_LEN_MAX = by_name("gate_len").hi
 
 
+# the clock with no byte between a packet's body and its CRC-32 (see FramePacketizer)
+CRC_WAIT = 1
+
+
 def packet_cycles(frame_type: int, n_samples: int) -> int:
     """Clocks the packetizer spends on one admitted frame of ``n_samples`` samples.
 
     ``n_samples`` clocks to take the samples, one to take the result, three to decide, then one
-    per packet byte (12 + 16 + payload; a peaks frame counted with both records); the wait for
-    the detector's result (``RESULT_LATENCY``) comes on top when the samples arrive back to
-    back.
+    per packet byte (12 + 16 + payload; a peaks frame counted with both records) and one with
+    no byte before the body CRC (:class:`hdl._crc.SplitCRC`'s second clock); the wait for the
+    detector's result (``RESULT_LATENCY``) comes on top when the samples arrive back to back.
     """
     items = 2 if frame_type == FrameType.PEAKS else n_samples
-    return n_samples + 4 + PACKET_HEADER.size + _HDR + items * item_bytes(frame_type) + CRC_BYTES
+    return (n_samples + 4 + PACKET_HEADER.size + _HDR + items * item_bytes(frame_type)
+            + CRC_WAIT + CRC_BYTES)
 
 
 class FramePacketizer(wiring.Component):
@@ -182,14 +188,16 @@ class FramePacketizer(wiring.Component):
         m.d.comb += adv.eq(prime | fh_last | j_last)
         m.d.sync += [prime.eq(0), fh_last.eq(0), j_last.eq(0)]  # unless set below
         hcrc = m.submodules.hcrc = HEADER_CRC(data_width=8).create()
-        # The CRC-32 is restarted by a synchronous reset at a clock before the body (the link
-        # header's first CRC-16 byte), not by its `start` with the first body byte: `start`
-        # is a mux on every input of its XOR trees (`start` -> the trees -> `crc_reg` was the
-        # packetizer's worst path, 5.65 ns, 4.2 of it routing); a reset is the flip-flops'
-        # own LSR pin. The previous packet's CRC bytes are out by then, and no body byte
-        # comes between.
-        bcrc_clear = Signal()
-        bcrc = m.submodules.bcrc = ResetInserter(bcrc_clear)(BODY_CRC(data_width=8).create())
+        # The CRC-32 is restarted by `clear`, a synchronous reset, at a clock before the body
+        # (the link header's first CRC-16 byte), not by a `start` with the first body byte:
+        # `start` is a mux on every input of its XOR trees (`start` -> the trees -> `crc_reg`
+        # was the packetizer's worst path, 5.65 ns, 4.2 of it routing); a reset is the
+        # flip-flops' own LSR pin. The previous packet's CRC bytes are out by then, and no body
+        # byte comes between. Its data term is registered a clock ahead of its state loop
+        # (`hdl._crc.SplitCRC`: the library's one-clock update, the byte and the state into XOR
+        # trees of 17 inputs, was the pipeline's worst path, 6.49 ns), so the CRC state trails
+        # its bytes by two clocks and the CRC bytes wait one clock (`crc_wait`).
+        bcrc = m.submodules.bcrc = SplitCRC(BODY_CRC(data_width=8))
 
         hdr = Signal(FRAME_HEADER_LAYOUT)
         res = Signal(PEAK_RESULT)
@@ -352,6 +360,7 @@ class FramePacketizer(wiring.Component):
 
         j = Signal(range(_REC + 1))  # byte within the current sample item
         crc_i = Signal(range(CRC_BYTES))
+        crc_wait = Signal()  # the first clock of CRC: the last body byte is not in the CRC yet
         byte = Signal(8)
         w_en = Signal()
         w_last = Signal()
@@ -379,7 +388,7 @@ class FramePacketizer(wiring.Component):
             fifo.w_en.eq(put_q),
             fifo.w_keep.eq(put_q),
             hcrc.data.eq(q_byte), hcrc.valid.eq(q_hv), hcrc.start.eq(q_hs),
-            bcrc.data.eq(q_byte), bcrc.valid.eq(q_bv), bcrc.start.eq(0), bcrc_clear.eq(q_hs),
+            bcrc.data.eq(q_byte), bcrc.valid.eq(q_bv), bcrc.clear.eq(q_hs),
         ]
 
         # one flip-flop per state (hdl._primitives.OneHotFSM): the state tests and the
@@ -460,7 +469,8 @@ class FramePacketizer(wiring.Component):
             with m.If(at[0]):
                 # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
                 # high: `fh_last`)
-                m.d.sync += [*load_left(left_items, at_items), j.eq(0), crc_i.eq(0)]
+                m.d.sync += [*load_left(left_items, at_items), j.eq(0), crc_i.eq(0),
+                             crc_wait.eq(1)]
                 with m.If(no_items):
                     fsm.next("CRC")
                 with m.Else():
@@ -479,12 +489,16 @@ class FramePacketizer(wiring.Component):
                 with m.If(at[0]):
                     fsm.next("CRC")
         with fsm.state("CRC"):
-            m.d.comb += [w_en.eq(1), src.eq(3),
+            # a clock with no byte, then the four: the body CRC's state takes in a byte two
+            # clocks after its write decision (`q_byte`, then its data term)
+            m.d.comb += [w_en.eq(~crc_wait), src.eq(3),
                          w_last.eq(crc_i == CRC_BYTES - 1)]
-            m.d.sync += crc_i.eq(crc_i + 1)
-            with m.If(crc_i == CRC_BYTES - 1):
-                m.d.sync += hdr_rdy.eq(1)
-                fsm.next("HEADER")
+            m.d.sync += crc_wait.eq(0)
+            with m.If(~crc_wait):
+                m.d.sync += crc_i.eq(crc_i + 1)
+                with m.If(crc_i == CRC_BYTES - 1):
+                    m.d.sync += hdr_rdy.eq(1)
+                    fsm.next("HEADER")
         fsm.close()
 
         m.d.comb += [

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hdl.frame import BYTE, PACK_IN, FramePacketizer, packet_cycles
+from hdl.frame import BYTE, CRC_WAIT, PACK_IN, FramePacketizer, packet_cycles
 from hdl.layouts import FRAME_HEADER_LAYOUT
 from hdl.peak_detect import PEAK_RESULT
 from hdl.tb.cosim import Design, Sink, Source, run
@@ -24,7 +24,7 @@ from model.chain import run_chain
 from model.device import encode_batch
 from model.gate import gate_events
 from model.layouts import PEAK_RECORD, FrameType
-from model.link import PacketType, encode_packet, packet_size
+from model.link import CRC_BYTES, PacketType, encode_packet, packet_size
 from model.registers import Config
 
 # the FIFO holds every packet of a traffic test (18 164 bytes at most), so only the
@@ -121,11 +121,14 @@ def test_packets(tmp_path, ftype, traffic_name):
     flags = [fr[3] for fr in f.frames]
     assert any(fl & 0x0C == 0x0C for fl in flags), "echo frames should have surface and bottom"
     if traffic_name == "plain":
-        # one byte per clock inside a packet, no gap
+        # one byte per clock inside a packet, but for CRC_WAIT clocks before its CRC-32
         clk = res.sinks["o"]["clock"]
         first = 0
         for e in ends:
-            assert np.all(np.diff(clk[first:e + 1]) == 1)
+            gaps = np.diff(clk[first:e + 1])
+            want_gaps = np.ones_like(gaps)
+            want_gaps[-CRC_BYTES] += CRC_WAIT
+            assert gaps.tolist() == want_gaps.tolist()
             first = e + 1
 
 
