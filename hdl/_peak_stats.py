@@ -195,9 +195,14 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         m.d.sync += noise.eq(noise_full)
     noise_new = _reg(m, full_new, 1, "noise_new")
     noise_tag = _delay(m, dev_tag, 2, "noise_tag")[-1]
-    # k_thr_q4 * noise: the DSP blocks' own registers, two clocks, then the partial sum. The
-    # blocks read `noise_full`, the value `noise` loads, a clock before `noise` holds it: the
-    # product is then ready a clock early, and that clock goes to the floor's compare below.
+    # k_thr_q4 * noise: the DSP blocks' own registers, two clocks, the products registered
+    # again in the fabric, then the partial sum. The blocks read `noise_full`, the value
+    # `noise` loads, a clock before `noise` holds it: the product is then ready a clock early,
+    # and that clock goes to the floor's compare below. The fabric's copy of the products:
+    # the placer may put these two blocks far from the detector's logic (the DSP sites are
+    # few, and the filter's take most), and the route from a block's output into the sum's
+    # carry chain was the one-lane pipeline's worst path on seed 1 (7.18 ns, 4.93 of it that
+    # one net, thirty-sixth session); a register can sit half way.
     k_shape_s = signed(len(cfg.k_thr_q4) + 1)
     mul_lo = m.submodules.thr_mul_lo = RegisteredMultiplier(k_shape_s, signed(_LO_BITS + 1))
     mul_hi = m.submodules.thr_mul_hi = RegisteredMultiplier(
@@ -205,10 +210,12 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     m.d.comb += [mul_lo.a.eq(cfg.k_thr_q4), mul_lo.b.eq(noise_full[:_LO_BITS]),
                  mul_lo.ce.eq(1), mul_hi.a.eq(cfg.k_thr_q4),
                  mul_hi.b.eq(noise_full[_LO_BITS:]), mul_hi.ce.eq(1)]
-    prod = _reg(m, mul_lo.p + (mul_hi.p << _LO_BITS),
+    p_lo = _reg(m, mul_lo.p, mul_lo.p.shape(), "thr_p_lo")
+    p_hi = _reg(m, mul_hi.p, mul_hi.p.shape(), "thr_p_hi")
+    prod = _reg(m, p_lo + (p_hi << _LO_BITS),
                 unsigned(len(cfg.k_thr_q4) + NOISE_WIDTH), "prod")
-    prod_new = _delay(m, noise_new, 3, "prod_new")[-1]
-    prod_tag = _delay(m, noise_tag, 3, "prod_tag")[-1]
+    prod_new = _delay(m, noise_new, 4, "prod_new")[-1]
+    prod_tag = _delay(m, noise_tag, 4, "prod_tag")[-1]
     thr = Signal(THR_WIDTH)
     # max(min_thr, prod >> 4) over two clocks, the compare in the first (`prod` holds the
     # product a clock before `prod_new`, see above) and the choice in the second: prod >> 4
@@ -222,23 +229,26 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     above = _reg(m, prod_thr[w:].any() | _sub_sign(m, cfg.min_thr, prod_thr[:w], "thr_floor"),
                  1, "thr_above")
     prod_thr_q = _reg(m, prod_thr, len(prod_thr), "thr_prod")
+    thr_next = Mux(above, prod_thr_q, cfg.min_thr)
     with m.If(prod_new):
-        m.d.sync += thr.eq(Mux(above, prod_thr_q, cfg.min_thr))
+        m.d.sync += thr.eq(thr_next)
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
     # each lane makes one 24-bit compare
-    # (the sum, then the cap a clock later)
+    # (the sum, then the cap a clock later). The sum reads the choice `thr` loads, at the
+    # clock `thr` loads it: the fabric's copy of the products took the clock `thr` had
+    # ahead of the sum, and the bound keeps its clock.
     bound = Signal(_Y)
     # (with the lookahead, mu as the beat at this stage saw it: a later frame's mu may have
     # been registered meanwhile)
     mu_at = _delay(m, mu, depth + 11, "la_mu") if LA else [mu]
-    total = _reg(m, mu_at[depth + 9 if LA else 0] + thr,
+    total = _reg(m, mu_at[depth + 9 if LA else 0] + thr_next,
                  signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1), "bound_total")
     # the surface's bound mu + min_surf likewise, from the same mu, loaded with bound
     sbound = Signal(_Y)
     s_total = _reg(m, mu_at[depth + 9 if LA else 0] + cfg.min_surf,
                    signed(max(OUT_WIDTH, len(cfg.min_surf) + 1) + 1), "sbound_total")
-    total_new = _delay(m, prod_new, 2, "bound_new")[-1]
-    total_tag = _delay(m, prod_tag, 2, "bound_tag")[-1]
+    total_new = _delay(m, prod_new, 1, "bound_new")[-1]
+    total_tag = _delay(m, prod_tag, 1, "bound_tag")[-1]
     def capped(t):  # min(t, _Y_HI): t > _Y_HI is not negative with a bit at or above y's sign
         return Mux(~t[-1] & t[OUT_WIDTH - 1:-1].any(), _Y_HI, t)
 
@@ -271,7 +281,7 @@ def _frame_queue(m, t_dev, mu_at, noise, thr, bound, sbound, q_pop, stats_ok):
     q = m.submodules.la_stats = _Store(qrec.size, _QUEUE)
     entry = Signal(qrec, name="la_entry")
     m.d.comb += [entry.mu.eq(mu_at[-1]), entry.noise.eq(_delay_to(m, noise, 6, "la_noise")),
-                 entry.thr.eq(_delay(m, thr, 2, "la_thr")[-1]), entry.bound.eq(bound),
+                 entry.thr.eq(_delay(m, thr, 1, "la_thr")[-1]), entry.bound.eq(bound),
                  entry.sbound.eq(sbound),
                  q.w_data.eq(entry), q.w_en.eq(push_at), q.w_keep.eq(push_at)]
     cur, cur_valid = Signal(qrec, name="la_cur"), Signal(name="la_cur_valid")
