@@ -33,6 +33,7 @@ from model.registers import REGISTERS
 from ._bram import BlockRAM
 from ._link_rx import RD_LATENCY, LinkReceiver, check_buffer_bytes, max_payload
 from ._link_tx import ACK_INFO, ACK_PAYLOAD_MAX, FRAME_BYTE, LinkTransmitter
+from ._primitives import OneHotFSM
 from .layouts import config_signature
 from .matched_filter import COEF_WRITE
 
@@ -219,131 +220,139 @@ class Link(wiring.Component):
         load, write = Signal(), Signal()
         m.d.sync += [load.eq(0), write.eq(0)]
 
+        # one flip-flop per state (hdl._primitives.OneHotFSM), not a decode of a binary state
+        # register (`fsm_state` -> the receiver's `base` and the plan's registers were the
+        # device's worst paths, thirty-fifth session)
+        fsm = OneHotFSM(m, ("BOOT", "IDLE", "FETCH", "CHECK", "CHECK2", "PLAN", "DECIDE",
+                            "BANK_WRITE", "SCAN", "WAIT_IDLE", "COPY_READ", "COPY_WAIT",
+                            "COPY_WRITE", "DONE"), name="exec")
+
         def answer(err, data_src, length):
             """Set the answer DONE loads (values or constants); the caller keeps a failure's
             `err` as the last error."""
             m.d.sync += [new_err.eq(err), new_len.eq(length), src.eq(data_src), load.eq(1)]
-            m.next = "DONE"
+            fsm.next("DONE")
 
         def respond(err, data="none", nbytes=0):
             answer(Const(int(err), 8), srcs[data], 1 + nbytes)
             if int(err) != ErrorCode.OK:
                 m.d.sync += last_error.eq(int(err))
 
-        with m.FSM():
-            with m.State("BOOT"):
-                m.d.comb += [self.coef.valid.eq(1), self.coef.payload.addr.eq(0),
-                             self.coef.payload.data.eq(POWER_ON_COEF)]
-                with m.If(self.coef.ready):
-                    m.next = "IDLE"
-            with m.State("IDLE"):
-                with m.If(rx.pkt.valid & ~ack_valid):
-                    m.d.sync += fetch.eq(0)
-                    m.next = "FETCH"
-            with m.State("FETCH"):
-                # one payload byte per clock, each RD_LATENCY clocks after its offset
-                m.d.comb += rx.rd_offset.eq(fetch)
-                m.d.sync += fetch.eq(fetch + 1)
-                with m.Switch(fetch):
-                    for n in range(_KEY_BYTES):
-                        with m.Case(n + RD_LATENCY):
-                            m.d.sync += p[n].eq(Mux(has[n], rx.rd_data, 0))
-                with m.If(fetch == _KEY_BYTES - 1 + RD_LATENCY):
-                    m.next = "CHECK"
-            with m.State("CHECK"):
-                # the checks of `flags` are registered in two stages (CHECK, CHECK2), so
-                # DECIDE sees them as flip-flops: compares and a choice among the registers,
-                # which did not fit one clock; the plan made of them is a third (PLAN)
-                m.next = "CHECK2"
-            with m.State("CHECK2"):
-                m.next = "PLAN"
-            with m.State("PLAN"):
-                m.next = "DECIDE"
-            with m.State("DECIDE"):
-                m.d.sync += [last.eq(key), last_valid.eq(1),
-                             ack.type.eq(PacketType.ACK | pkt.type[:7]), ack.seq.eq(pkt.seq)]
-                with m.If(flags["retry"]):
-                    # a retry (the model's rule): the same acknowledgement, nothing redone
-                    # (no `load`: type and seq are the key's, as before)
-                    m.next = "DONE"
-                with m.Elif(plan["bank_write"]):
-                    m.d.sync += [off.eq(2), waddr.eq(word)]
-                    m.d.sync += [g.eq(0) for g in got_q]
-                    m.next = "BANK_WRITE"
-                with m.Elif(plan["scan"]):
-                    m.d.sync += [scan.eq(0), commit.eq(plan["commit"])]
-                    m.next = "SCAN"
+        with fsm.state("BOOT"):
+            m.d.comb += [self.coef.valid.eq(1), self.coef.payload.addr.eq(0),
+                         self.coef.payload.data.eq(POWER_ON_COEF)]
+            with m.If(self.coef.ready):
+                fsm.next("IDLE")
+        with fsm.state("IDLE"):
+            with m.If(rx.pkt.valid & ~ack_valid):
+                m.d.sync += fetch.eq(0)
+                fsm.next("FETCH")
+        with fsm.state("FETCH"):
+            # one payload byte per clock, each RD_LATENCY clocks after its offset
+            m.d.comb += rx.rd_offset.eq(fetch)
+            m.d.sync += fetch.eq(fetch + 1)
+            with m.Switch(fetch):
+                for n in range(_KEY_BYTES):
+                    with m.Case(n + RD_LATENCY):
+                        m.d.sync += p[n].eq(Mux(has[n], rx.rd_data, 0))
+            with m.If(fetch == _KEY_BYTES - 1 + RD_LATENCY):
+                fsm.next("CHECK")
+        with fsm.state("CHECK"):
+            # the checks of `flags` are registered in two stages (CHECK, CHECK2), so
+            # DECIDE sees them as flip-flops: compares and a choice among the registers,
+            # which did not fit one clock; the plan made of them is a third (PLAN)
+            fsm.next("CHECK2")
+        with fsm.state("CHECK2"):
+            fsm.next("PLAN")
+        with fsm.state("PLAN"):
+            fsm.next("DECIDE")
+        with fsm.state("DECIDE"):
+            m.d.sync += [last.eq(key), last_valid.eq(1),
+                         ack.type.eq(PacketType.ACK | pkt.type[:7]), ack.seq.eq(pkt.seq)]
+            with m.If(flags["retry"]):
+                # a retry (the model's rule): the same acknowledgement, nothing redone
+                # (no `load`: type and seq are the key's, as before)
+                fsm.next("DONE")
+            with m.Elif(plan["bank_write"]):
+                m.d.sync += [off.eq(2), waddr.eq(word)]
+                m.d.sync += [g.eq(0) for g in got_q]
+                fsm.next("BANK_WRITE")
+            with m.Elif(plan["scan"]):
+                m.d.sync += [scan.eq(0), commit.eq(plan["commit"])]
+                fsm.next("SCAN")
+            with m.Else():
+                answer(plan["err"], plan["src"], plan["len"])
+                with m.If(plan["bad"]):
+                    m.d.sync += last_error.eq(plan["err"])
+                m.d.sync += write.eq(plan["write"])
+                with m.If(plan["start"]):
+                    m.d.sync += self.acquiring.eq(1)
+                with m.If(plan["stop"]):
+                    m.d.sync += self.acquiring.eq(0)
+        with fsm.state("BANK_WRITE"):
+            # what is known of offset `off` travels beside its read, RD_LATENCY clocks
+            m.d.comb += rx.rd_offset.eq(off)
+            m.d.sync += [off.eq(off + 1),
+                         got_q[0].eq(Cat(off < pkt.length, off[0], off + 1 == pkt.length))]
+            m.d.sync += [got_q[n].eq(got_q[n - 1]) for n in range(1, RD_LATENCY)]
+            with m.If(got & ~got_hi):
+                m.d.sync += lo.eq(rx.rd_data)
+            with m.If(got & got_hi):
+                m.d.comb += [shadow.w_en.eq(1), shadow.w_addr.eq(waddr),
+                             shadow.w_data.eq(Cat(lo, rx.rd_data))]
+                m.d.sync += waddr.eq(waddr + 1)
+                with m.If(got_last):
+                    respond(ErrorCode.OK)
+        with fsm.state("SCAN"):
+            # word a is read at scan = a and enters the CRC at scan = a + 2 from the
+            # block's output register; the CRC is final at scan = BANK_WORDS + 2, and a
+            # commit compares it there, registered, and decides a clock later
+            m.d.comb += shadow.r_addr.eq(scan)
+            m.d.sync += [scan.eq(scan + 1),
+                         scan_crc.start.eq(scan == 1),
+                         scan_crc.valid.eq((scan >= 1) & (scan <= BANK_WORDS)),
+                         crc_ok.eq(scan_crc.crc == value)]
+            with m.If(scan_at[0] & ~commit):
+                respond(ErrorCode.OK, "crc", 4)
+            with m.If(scan_at[1]):  # a commit's
+                with m.If(~crc_ok):
+                    respond(ErrorCode.CRC_MISMATCH)
                 with m.Else():
-                    answer(plan["err"], plan["src"], plan["len"])
-                    with m.If(plan["bad"]):
-                        m.d.sync += last_error.eq(plan["err"])
-                    m.d.sync += write.eq(plan["write"])
-                    with m.If(plan["start"]):
-                        m.d.sync += self.acquiring.eq(1)
-                    with m.If(plan["stop"]):
-                        m.d.sync += self.acquiring.eq(0)
-            with m.State("BANK_WRITE"):
-                # what is known of offset `off` travels beside its read, RD_LATENCY clocks
-                m.d.comb += rx.rd_offset.eq(off)
-                m.d.sync += [off.eq(off + 1),
-                             got_q[0].eq(Cat(off < pkt.length, off[0], off + 1 == pkt.length))]
-                m.d.sync += [got_q[n].eq(got_q[n - 1]) for n in range(1, RD_LATENCY)]
-                with m.If(got & ~got_hi):
-                    m.d.sync += lo.eq(rx.rd_data)
-                with m.If(got & got_hi):
-                    m.d.comb += [shadow.w_en.eq(1), shadow.w_addr.eq(waddr),
-                                 shadow.w_data.eq(Cat(lo, rx.rd_data))]
-                    m.d.sync += waddr.eq(waddr + 1)
-                    with m.If(got_last):
-                        respond(ErrorCode.OK)
-            with m.State("SCAN"):
-                # word a is read at scan = a and enters the CRC at scan = a + 2 from the
-                # block's output register; the CRC is final at scan = BANK_WORDS + 2, and a
-                # commit compares it there, registered, and decides a clock later
-                m.d.comb += shadow.r_addr.eq(scan)
-                m.d.sync += [scan.eq(scan + 1),
-                             scan_crc.start.eq(scan == 1),
-                             scan_crc.valid.eq((scan >= 1) & (scan <= BANK_WORDS)),
-                             crc_ok.eq(scan_crc.crc == value)]
-                with m.If(scan_at[0] & ~commit):
-                    respond(ErrorCode.OK, "crc", 4)
-                with m.If(scan_at[1]):  # a commit's
-                    with m.If(~crc_ok):
-                        respond(ErrorCode.CRC_MISMATCH)
-                    with m.Else():
-                        m.d.sync += self.bank_busy.eq(1)
-                        m.next = "WAIT_IDLE"
-            with m.State("WAIT_IDLE"):
-                with m.If(self.frame_idle):
-                    m.d.sync += [k.eq(0), j.eq(0)]
-                    m.next = "COPY_READ"
-            with m.State("COPY_READ"):
-                m.d.comb += shadow.r_addr.eq(Cat(j, k))
-                # the copy's end, registered here for COPY_WRITE: the adds and compares on
-                # `j` and `k` were in front of the acknowledgement's registers (10.6 ns)
-                m.d.sync += [j_last.eq(j + 1 == l_new), k_last.eq(k + 1 == k_new)]
-                m.next = "COPY_WAIT"
-            with m.State("COPY_WAIT"):  # the block's second clock
-                m.d.comb += shadow.r_addr.eq(Cat(j, k))
-                m.next = "COPY_WRITE"
-            with m.State("COPY_WRITE"):
-                m.d.comb += [shadow.r_addr.eq(Cat(j, k)),  # holds the word read
-                             self.coef.valid.eq(1), self.coef.payload.addr.eq(Cat(j, k)),
-                             self.coef.payload.data.eq(shadow.r_data)]
-                with m.If(self.coef.ready):
-                    m.d.sync += j.eq(j + 1)
-                    m.next = "COPY_READ"
-                    with m.If(j_last):
-                        m.d.sync += [j.eq(0), k.eq(k + 1)]
-                        with m.If(k_last):
-                            m.d.sync += [self.templates.eq(k_new), self.taps.eq(l_new),
-                                         self.bank_id.eq(self.bank_id + 1),
-                                         self.bank_busy.eq(0)]
-                            respond(ErrorCode.OK, "bank", 1)
-            with m.State("DONE"):
-                m.d.comb += rx.pkt.ready.eq(1)
-                m.d.sync += ack_valid.eq(1)
-                m.next = "IDLE"
+                    m.d.sync += self.bank_busy.eq(1)
+                    fsm.next("WAIT_IDLE")
+        with fsm.state("WAIT_IDLE"):
+            with m.If(self.frame_idle):
+                m.d.sync += [k.eq(0), j.eq(0)]
+                fsm.next("COPY_READ")
+        with fsm.state("COPY_READ"):
+            m.d.comb += shadow.r_addr.eq(Cat(j, k))
+            # the copy's end, registered here for COPY_WRITE: the adds and compares on
+            # `j` and `k` were in front of the acknowledgement's registers (10.6 ns)
+            m.d.sync += [j_last.eq(j + 1 == l_new), k_last.eq(k + 1 == k_new)]
+            fsm.next("COPY_WAIT")
+        with fsm.state("COPY_WAIT"):  # the block's second clock
+            m.d.comb += shadow.r_addr.eq(Cat(j, k))
+            fsm.next("COPY_WRITE")
+        with fsm.state("COPY_WRITE"):
+            m.d.comb += [shadow.r_addr.eq(Cat(j, k)),  # holds the word read
+                         self.coef.valid.eq(1), self.coef.payload.addr.eq(Cat(j, k)),
+                         self.coef.payload.data.eq(shadow.r_data)]
+            with m.If(self.coef.ready):
+                m.d.sync += j.eq(j + 1)
+                with m.If(j_last):
+                    m.d.sync += [j.eq(0), k.eq(k + 1)]
+                with m.If(j_last & k_last):
+                    m.d.sync += [self.templates.eq(k_new), self.taps.eq(l_new),
+                                 self.bank_id.eq(self.bank_id + 1),
+                                 self.bank_busy.eq(0)]
+                    respond(ErrorCode.OK, "bank", 1)
+                with m.Else():
+                    fsm.next("COPY_READ")
+        with fsm.state("DONE"):
+            m.d.comb += rx.pkt.ready.eq(1)
+            m.d.sync += ack_valid.eq(1)
+            fsm.next("IDLE")
+        fsm.close()
 
         # DONE's loads, enabled by flip-flops that are high only then (`load`, `write`), not by
         # the state's decode: from the decision, and then from the state, each was the device's
