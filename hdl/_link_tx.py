@@ -15,6 +15,7 @@ from amaranth.lib.wiring import In, Out
 
 from model.link import BODY_CRC, CRC_BYTES, HEADER_CRC, LINK_SYNC_BYTES, PACKET_HEADER, STATUS
 
+from ._crc import SplitCRC
 from ._primitives import OneHotFSM
 
 __all__ = ["ACK_INFO", "ACK_PAYLOAD_MAX", "FRAME_BYTE", "LinkTransmitter"]
@@ -68,11 +69,15 @@ class LinkTransmitter(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        m.submodules.hcrc = hcrc = HEADER_CRC().create()
-        m.submodules.bcrc = bcrc = BODY_CRC().create()
+        # The CRCs register each byte's data term a clock before their state takes it
+        # (hdl._crc.SplitCRC: as the library's processors, fed from the state machine, the
+        # enable and the restart into the XOR trees were the link's worst paths alone,
+        # `ack.valid` -> the body CRC, 6.65 ns). Their two clocks of latency are hidden by
+        # feeding each byte a clock before it goes on the line: the shift register holds the
+        # whole packet, so the byte after the one on the line is `sh[8:16]`.
+        m.submodules.hcrc = hcrc = SplitCRC(HEADER_CRC(8))
+        m.submodules.bcrc = bcrc = SplitCRC(BODY_CRC(8))
         ack = self.ack.payload
-        sent = Signal()
-        m.d.comb += sent.eq(self.o.valid & self.o.ready)
 
         # The acknowledgement's bytes that come from its record (the header less its CRC, then
         # the payload) are loaded at once into a shift register and leave from its low byte,
@@ -84,9 +89,14 @@ class LinkTransmitter(wiring.Component):
         sh = Signal(8 * (_HCRC_AT + ACK_PAYLOAD_MAX))
         hpos = Signal(_HCRC_AT)  # one-hot: which header byte is on the line
         left = Signal(range(ACK_PAYLOAD_MAX))  # payload bytes after the one on the line
+        last = Signal()  # left == 0
+        m.d.comb += last.eq(left == 0)
         empty = Signal()  # no payload: the body CRC follows the header's at once
         cb = Signal(2)  # byte of the CRC on the line
-        m.d.comb += [hcrc.data.eq(sh[:8]), bcrc.data.eq(sh[:8])]
+        # the header CRC takes type, seq and length as the byte before each is sent; the
+        # body CRC the first payload byte as the header CRC's last byte is sent, each later
+        # one as the byte before it is
+        m.d.comb += [hcrc.data.eq(sh[8:16])]
 
         # one flip-flop per state (hdl._primitives.OneHotFSM): a decode of a binary state
         # register was in front of the CRCs' enables (the link's worst path alone on seed 2,
@@ -100,22 +110,26 @@ class LinkTransmitter(wiring.Component):
                     hpos.eq(1), left.eq(ack.length - 1), empty.eq(ack.length == 0),
                     cb.eq(0),
                 ]
-                m.d.comb += [hcrc.start.eq(1), bcrc.start.eq(1)]
+                m.d.comb += [hcrc.clear.eq(1), bcrc.clear.eq(1)]
                 fsm.next("HEADER")
             with m.Elif(self.frame.valid):
                 fsm.next("FRAME")
+        # (in every state but IDLE and FRAME `o.valid` is high, so a byte is sent when
+        # `o.ready` is: the state's flag does not go through `o.valid` into the enables)
         with fsm.state("HEADER"):
             m.d.comb += [self.o.valid.eq(1), self.o.payload.eq(sh[:8]),
-                         # type, seq and length go through the header CRC
-                         hcrc.valid.eq(sent & (hpos[_SYNC:] != 0))]
-            with m.If(sent):
+                         # type, seq and length go through the header CRC, a byte ahead
+                         hcrc.valid.eq(self.o.ready & (hpos[_SYNC - 1:-1] != 0))]
+            with m.If(self.o.ready):
                 m.d.sync += [sh.eq(sh[8:]), hpos.eq(hpos << 1)]
                 with m.If(hpos[-1]):
                     fsm.next("HCRC")
         with fsm.state("HCRC"):
             m.d.comb += [self.o.valid.eq(1),
-                         self.o.payload.eq(hcrc.crc.word_select(cb[0], 8))]
-            with m.If(sent):
+                         self.o.payload.eq(hcrc.crc.word_select(cb[0], 8)),
+                         bcrc.data.eq(sh[:8]),
+                         bcrc.valid.eq(self.o.ready & cb[0] & ~empty)]
+            with m.If(self.o.ready):
                 m.d.sync += cb.eq(cb + 1)
                 with m.If(cb[0]):
                     m.d.sync += cb.eq(0)
@@ -125,14 +139,14 @@ class LinkTransmitter(wiring.Component):
                         fsm.next("PAYLOAD")
         with fsm.state("PAYLOAD"):
             m.d.comb += [self.o.valid.eq(1), self.o.payload.eq(sh[:8]),
-                         bcrc.valid.eq(sent)]
-            with m.If(sent):
+                         bcrc.data.eq(sh[8:16]), bcrc.valid.eq(self.o.ready & ~last)]
+            with m.If(self.o.ready):
                 m.d.sync += [sh.eq(sh[8:]), left.eq(left - 1)]
-                with m.If(left == 0):
+                with m.If(last):
                     fsm.next("BCRC")
         with fsm.state("BCRC"):
             m.d.comb += [self.o.valid.eq(1), self.o.payload.eq(bcrc.crc.word_select(cb, 8))]
-            with m.If(sent):
+            with m.If(self.o.ready):
                 m.d.sync += cb.eq(cb + 1)
                 with m.If(cb == CRC_BYTES - 1):
                     m.d.comb += self.ack.ready.eq(1)
