@@ -87,13 +87,13 @@ CRC_WAIT = 1
 def packet_cycles(frame_type: int, n_samples: int) -> int:
     """Clocks the packetizer spends on one admitted frame of ``n_samples`` samples.
 
-    ``n_samples`` clocks to take the samples, one to take the result, three to decide, then one
+    ``n_samples`` clocks to take the samples, one to take the result, four to decide, then one
     per packet byte (12 + 16 + payload; a peaks frame counted with both records) and one with
     no byte before the body CRC (:class:`hdl._crc.SplitCRC`'s second clock); the wait for the
     detector's result (``RESULT_LATENCY``) comes on top when the samples arrive back to back.
     """
     items = 2 if frame_type == FrameType.PEAKS else n_samples
-    return (n_samples + 4 + PACKET_HEADER.size + _HDR + items * item_bytes(frame_type)
+    return (n_samples + 5 + PACKET_HEADER.size + _HDR + items * item_bytes(frame_type)
             + CRC_WAIT + CRC_BYTES)
 
 
@@ -136,12 +136,13 @@ class FramePacketizer(wiring.Component):
 
     Notes
     -----
-    Latency: the packet's first byte is written to the FIFO on the sixth clock edge after the
-    one that takes the result (size, room compare, admission, byte choice, output byte,
-    write) and appears on ``o`` 3 clocks later (the FIFO's block RAM and its two read
-    registers); then one byte per clock while ``o`` is ready. ``header.ready``, ``i.ready``
-    and ``result.ready`` are registers. While a packet is written (one byte per clock, never
-    stalled), the next frame's samples wait: :func:`packet_cycles` gives the clocks a frame
+    Latency: the packet's first byte is written to the FIFO on the seventh clock edge after
+    the one that takes the result (size, room compare, the compare's second register,
+    admission, byte choice, output byte, write) and appears on ``o`` 3 clocks later (the
+    FIFO's block RAM and its two read registers); then one byte per clock while ``o`` is
+    ready. ``header.ready``, ``i.ready`` and ``result.ready`` are registers. While a packet is
+    written (one byte per clock, never stalled, with one clock of no byte before the CRC-32:
+    ``CRC_WAIT``), the next frame's samples wait: :func:`packet_cycles` gives the clocks a frame
     occupies the block.
     """
 
@@ -316,8 +317,11 @@ class FramePacketizer(wiring.Component):
         # the room counts a byte from its choice (a clock early: it only errs on the safe side),
         # the level from its write
         m.d.sync += [room.eq(_step(room, got, put)), level.eq(_step(level, put_q, got))]
-        fits = Signal()
-        m.d.sync += fits.eq(_le(body, room))
+        # and registered twice, a clock apart: once at the compare's carry chain, once beside
+        # the decision's registers (as one register the chain's end ran 2.3 ns to the
+        # decision's side, the pipeline's worst path on seed 1, 6.08 ns, thirty-sixth session)
+        fits_c, fits = Signal(), Signal()
+        m.d.sync += [fits_c.eq(_le(body, room)), fits.eq(fits_c)]
 
         # ---- emit: packet header, frame header (+ records), samples, CRC ----
         # The state machine chooses each byte and what the CRCs do with it, all into registers
@@ -401,7 +405,7 @@ class FramePacketizer(wiring.Component):
 
         # one flip-flop per state (hdl._primitives.OneHotFSM): the state tests and the
         # transitions read single bits, not a decode of a binary state register
-        fsm = OneHotFSM(m, ("HEADER", "COLLECT", "RESULT", "SIZE", "ROOM", "DECIDE",
+        fsm = OneHotFSM(m, ("HEADER", "COLLECT", "RESULT", "SIZE", "ROOM", "ROOM2", "DECIDE",
                             "LINK_HEADER", "FRAME_HEADER", "SAMPLES", "CRC"), name="pack")
         with fsm.state("HEADER"):
             with m.If(self.header.valid):
@@ -430,11 +434,14 @@ class FramePacketizer(wiring.Component):
                 fsm.next("SIZE")
         with fsm.state("SIZE"):
             # the size is known from the stored result: `body` registers it at this edge,
-            # `fits` compares it with the FIFO's room at the next (two short paths rather
-            # than one long one). The room only grows meanwhile (nothing else writes), so a
-            # decision made a clock early never admits a packet that does not fit.
+            # `fits_c` compares it with the FIFO's room at the next, `fits` holds that a clock
+            # later (short paths rather than one long one). The room only grows meanwhile
+            # (nothing else writes), so a decision made two clocks early never admits a packet
+            # that does not fit.
             fsm.next("ROOM")
         with fsm.state("ROOM"):
+            fsm.next("ROOM2")
+        with fsm.state("ROOM2"):
             fsm.next("DECIDE")
         with fsm.state("DECIDE"):
             # `sh` (384 bits) loads whether the packet fits or not (a dropped packet's is never
