@@ -128,7 +128,8 @@ def every_command(s: Script) -> None:
         s.send(t, bytes(rng.integers(0, 256, int(rng.integers(0, 9)), dtype=np.uint8)))
     for r in REGISTERS:
         s.send(P.READ_REG, reg_payload(r.address))
-    for addr in (len(REGISTERS), 0x00FF, 0xFFFF):
+    # (and addresses whose low byte is a register's, the high byte not zero)
+    for addr in (len(REGISTERS), 0x00FF, 0x0100, 0x0100 + len(REGISTERS) - 1, 0xFF00, 0xFFFF):
         s.send(P.READ_REG, reg_payload(addr))  # BAD_ADDRESS
         s.send(P.WRITE_REG, reg_payload(addr, 0))
     s.send(P.READ_REG, b"\x00")
