@@ -368,7 +368,7 @@ class TestAmaranthSim:
         s = Script(seed=7)
         payload = {"BANK_WRITE": words(0, [1, 2, 3, 4]), "BANK_COMMIT": commit(2, 3, 0)}
         extra = {"BANK_WRITE": 2 * 4 + 3, "BANK_CRC": BANK_WORDS + 3,
-                 "BANK_COMMIT": BANK_WORDS + 5 + 3 * 2 * 3}
+                 "BANK_COMMIT": BANK_WORDS + 6 + 3 * 2 * 3}
         if cmd == "BANK_COMMIT":
             payload[cmd] = commit(2, 3, s.shadow_crc())
         s.send(P[cmd], payload.get(cmd, b""))
