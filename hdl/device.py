@@ -184,13 +184,17 @@ class Link(wiring.Component):
         value = Cat(p[2], p[3], p[4], p[5])  # WRITE_REG value, BANK_COMMIT crc
         k_new, l_new = p[0], p[1]
         fetch = Signal(range(_KEY_BYTES + RD_LATENCY))
-        # the register address decoded as its bytes are fetched: "low byte is register i's"
-        # and "high byte is zero" (every address is below 256), so that the checks' decode of
-        # `word` is one AND (as a 16-bit decode, with the address range test sharing its carry
-        # chain, it was the link's worst path alone on seed 1, `p1` -> `chk_sel6`, 6.67 ns)
+        # the register address decoded from its bytes, every clock, a stage before the checks:
+        # "low byte is register i's" and "high byte is zero" (every address is below 256),
+        # so that the checks' decode of `word` is one AND (as a 16-bit decode, with the
+        # address range test sharing its carry chain, it was the link's worst path alone on
+        # seed 1, `p1` -> `chk_sel6`, 6.67 ns). The two bytes are fetched first, four clocks
+        # or more before FETCH ends, so these are settled when CHECK reads them.
         assert all(r.address < 256 for r in REGISTERS)
         addr_is = [Signal(name=f"addr_is{i}") for i in range(len(REGISTERS))]
         p1_zero = Signal()
+        m.d.sync += [a.eq(p[0] == r.address) for a, r in zip(addr_is, REGISTERS, strict=True)]
+        m.d.sync += p1_zero.eq(p[1] == 0)
         # whether the payload has byte n, from the length (held from delivery on) a clock ahead
         has = Signal(_KEY_BYTES)
         m.d.sync += has.eq(Cat(pkt.length > n for n in range(_KEY_BYTES)))
@@ -273,13 +277,7 @@ class Link(wiring.Component):
             with m.Switch(fetch):
                 for n in range(_KEY_BYTES):
                     with m.Case(n + RD_LATENCY):
-                        byte_n = Mux(has[n], rx.rd_data, 0)
-                        m.d.sync += p[n].eq(byte_n)
-                        if n == 0:
-                            m.d.sync += [a.eq(byte_n == r.address)
-                                         for a, r in zip(addr_is, REGISTERS, strict=True)]
-                        if n == 1:
-                            m.d.sync += p1_zero.eq(byte_n == 0)
+                        m.d.sync += p[n].eq(Mux(has[n], rx.rd_data, 0))
             with m.If(fetch == _KEY_BYTES - 1 + RD_LATENCY):
                 fsm.next("CHECK")
         with fsm.state("CHECK"):
