@@ -234,15 +234,21 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         m.d.sync += thr.eq(thr_next)
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
     # each lane makes one 24-bit compare
-    # (the sum, then the cap a clock later). The sum reads the choice `thr` loads, at the
-    # clock `thr` loads it: the fabric's copy of the products took the clock `thr` had
-    # ahead of the sum, and the bound keeps its clock.
+    # (the sum, then the cap a clock later). The sum is the choice `thr` loads plus mu, at the
+    # clock `thr` loads it: the fabric's copy of the products took the clock `thr` had ahead
+    # of the sum, and the bound keeps its clock. So both sums, mu + prod >> 4 and mu +
+    # min_thr, are made a clock ahead, beside the floor's compare, and `above` chooses
+    # between them (the choice in front of the carry chain was the detector's worst path
+    # alone on seed 1, 5.63 ns, thirty-sixth session).
     bound = Signal(_Y)
     # (with the lookahead, mu as the beat at this stage saw it: a later frame's mu may have
-    # been registered meanwhile)
+    # been registered meanwhile; the sums a clock ahead read it a tap earlier)
     mu_at = _delay(m, mu, depth + 11, "la_mu") if LA else [mu]
-    total = _reg(m, mu_at[depth + 9 if LA else 0] + thr_next,
-                 signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1), "bound_total")
+    mu_early = mu_at[depth + 8 if LA else 0]
+    total_shape = signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1)
+    sum_prod = _reg(m, mu_early + prod_thr, total_shape, "bound_prod")
+    sum_min = _reg(m, mu_early + cfg.min_thr, total_shape, "bound_min")
+    total = _reg(m, Mux(above, sum_prod, sum_min), total_shape, "bound_total")
     # the surface's bound mu + min_surf likewise, from the same mu, loaded with bound
     sbound = Signal(_Y)
     s_total = _reg(m, mu_at[depth + 9 if LA else 0] + cfg.min_surf,
