@@ -129,9 +129,11 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
     bubble
         The most clocks a beat waits in ``D1`` for its frame's threshold, counted as extra
         latency: the flag and mask stages, two trees of ``levels`` clocks, the sum, ``mu``,
-        ``y - mu``, its magnitude, the sum, the shift and the register of ``noise``, two
-        multiplier clocks, the partial-product sum, ``thr``, the bound's sum and cap and the
-        registered tag match (into ``go``), from the beat that closes the noise window.
+        ``y - mu``, its magnitude, the sum, the shift (``noise_full``, which the multipliers
+        read a clock before ``noise`` holds it), two multiplier clocks, the products' copy in
+        the fabric, the partial-product sum, the floor's compare beside the bound's two sums,
+        the choice of the sum (as ``thr`` loads), the bound's cap and the registered tag match
+        (into ``go``), from the beat that closes the noise window.
 
     ``levels = ceil(log2(lanes))``: one lane gives ``(4, 26, 16)``, 4 lanes ``(4, 34, 20)``,
     8 lanes ``(4, 38, 22)``.
