@@ -179,22 +179,21 @@ class FramePacketizer(wiring.Component):
         # 5.8 ns of the 5 ns clock before any logic. Nothing writes it while it is read.
         # `adv` goes to the clock enables of every block, so it is a register, set a clock
         # ahead of the clock it stands for (a decode of the state, `left` and `j == ibytes -
-        # 1` there was the packetizer's worst path, 8.8 ns), high exactly when one of three
-        # flags is, each set in a state of its own (as their OR, two LUTs, it was the
-        # pipeline's worst path on seed 2, 6.07 ns, thirty-sixth session).
+        # 1` there was the packetizer's worst path, 8.8 ns), set in three states: the link
+        # header's first two clocks (the two reads that fill the stages), the frame header's
+        # last byte (word 0 is loaded) and a sample item's last (`j_last`: the next word is
+        # loaded). `word_en`, the word's enable, is set with it in the last two. (As an OR of
+        # a flag per state, two LUTs, `adv` was the pipeline's worst path on seed 2, 6.07 ns,
+        # thirty-sixth session.)
         buf = m.submodules.buf = BlockRAM(_KEPT, self.max_samples)
         raddr = Signal(range(self.max_samples))  # the next word to read (wraps; see LINK_HEADER)
-        prime = Signal()  # LINK_HEADER, pos < 2: the two reads that fill the stages
-        fh_last = Signal()  # FRAME_HEADER, left == 1: word 0 is loaded
         j_last = Signal()  # SAMPLES, j == ibytes - 1: the next word is loaded
-        adv = Signal()  # prime | fh_last | j_last
-        word_en = Signal()  # fh_last | j_last
-        m.d.sync += [prime.eq(0), fh_last.eq(0), j_last.eq(0),  # unless set below
-                     adv.eq(0), word_en.eq(0)]
+        adv, word_en = Signal(), Signal()
+        m.d.sync += [j_last.eq(0), adv.eq(0), word_en.eq(0)]  # unless set below
 
-        def set_flag(flag, value, loads_word):
-            """Set one of the three flags, and `adv` (and `word_en`) with it."""
-            return [flag.eq(value), adv.eq(value), *([word_en.eq(value)] if loads_word else [])]
+        def advance(value, loads_word):
+            """Set `adv` for the next clock (and `word_en` where the word loads)."""
+            return [adv.eq(value), *([word_en.eq(value)] if loads_word else [])]
 
         hcrc = m.submodules.hcrc = HEADER_CRC(data_width=8).create()
         # The CRC-32 is restarted by `clear`, a synchronous reset, at a clock before the body
@@ -336,8 +335,8 @@ class FramePacketizer(wiring.Component):
         # 5.8 ns unregistered output made 9.3 ns, 107 MHz; a 32-bit word whose top byte only
         # repeated bit 23 had Yosys rebuild it with a LUT there, 8.0 ns).
         word = Signal(_KEPT)
-        # `word` takes the buffer's output at the frame header's last byte (`fh_last`) and at
-        # a sample item's last (`j_last`): its enable a register (`word_en`), not the state's
+        # `word` takes the buffer's output at the frame header's last byte and at a sample
+        # item's last (`j_last`): its enable a register (`word_en`), not the state's
         # decode (that, with `left == 1`, was the worst path: 5.7 ns, 4.4 of routing)
         with m.If(word_en):
             m.d.sync += word.eq(buf.r_data)
@@ -455,7 +454,7 @@ class FramePacketizer(wiring.Component):
                                Const(PacketType.FRAME, 8), seq, body)),
                     pos.eq(1),
                     raddr.eq(0),
-                    *set_flag(prime, 1, False),
+                    *advance(1, False),
                     seq.eq(seq + 1),
                     self.frames_sent.eq(self.frames_sent + 1),
                 ]
@@ -469,10 +468,10 @@ class FramePacketizer(wiring.Component):
                          src.eq(Mux(pos[6], 1, Mux(pos[7], 2, 0))),
                          hv.eq(pos[2:6].any()), hs.eq(pos[2])]
             m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos << 1)]
-            # two reads (`prime` at pos 0 and 1) fill the buffer's read stages: words 0
+            # two reads (`adv` at pos 0 and 1) fill the buffer's read stages: words 0
             # and 1 (for a frame of one word or none, the reads beyond are of stale words,
             # never sent)
-            m.d.sync += set_flag(prime, pos[0], False)
+            m.d.sync += advance(pos[0], False)
             with m.If(pos[PACKET_HEADER.size - 1]):
                 # frame header, plus the records of a peaks frame
                 m.d.sync += load_left(left_hdr, at_hdr)
@@ -480,10 +479,10 @@ class FramePacketizer(wiring.Component):
         with fsm.state("FRAME_HEADER"):
             m.d.comb += [w_en.eq(1), byte.eq(sh[:8]), bv.eq(1)]
             # (`left` starts at _HDR or more)
-            m.d.sync += [sh.eq(sh >> 8), *count_left(), *set_flag(fh_last, at[1], True)]
+            m.d.sync += [sh.eq(sh >> 8), *count_left(), *advance(at[1], True)]
             with m.If(at[0]):
                 # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
-                # high: `fh_last`)
+                # high at this clock, set with the byte before)
                 m.d.sync += [*load_left(left_items, at_items), j.eq(0), crc_i.eq(0),
                              crc_wait.eq(1)]
                 with m.If(no_items):
@@ -498,7 +497,8 @@ class FramePacketizer(wiring.Component):
             m.d.sync += j.eq(j + 1)
             # j_last: j == ibytes - 1 (every sample item has 2 bytes or more, so a word
             # loaded is never the last of its item at once)
-            m.d.sync += set_flag(j_last, ~j_last & (j == ibytes_m2), True)
+            j_last_nx = ~j_last & (j == ibytes_m2)
+            m.d.sync += [j_last.eq(j_last_nx), *advance(j_last_nx, True)]
             with m.If(j_last):
                 m.d.sync += [j.eq(0), *count_left()]
                 with m.If(at[0]):
