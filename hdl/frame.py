@@ -363,11 +363,26 @@ class FramePacketizer(wiring.Component):
         m.d.sync += [f.eq(left_hdr == k) for k, f in enumerate(at_hdr, 1)]
         m.d.sync += [f.eq(left_items == k) for k, f in enumerate(at_items, 1)]
 
-        def load_left(value, flags):
-            return [left.eq(value), *(a.eq(f) for a, f in zip(at, flags, strict=True))]
-
-        def count_left():
-            return [left.eq(left - 1), at[0].eq(at[1]), at[1].eq(at[2]), at[2].eq(left == 4)]
+        # Which of its three updates `left` takes at a clock, as registers set a clock ahead
+        # (`ld_hdr`, `ld_items`, `dec`; at most one is set), so that each bit's next value is
+        # one choice among them: as a decode of the state, `pos`, `at` and `j_last` in the
+        # clock of the update, the frame header's state flag ran through four LUTs into
+        # `left`, the one-lane pipeline's worst path on seed 3 (5.81 ns, 4.3 of routing,
+        # thirty-sixth session). The updates:
+        # - `ld_hdr`: the link header's last byte loads the frame header's count;
+        # - `ld_items`: the frame header's last byte (`at[0]`) loads the items' count;
+        # - `dec`: any other frame header byte, and a sample item's last byte (`j_last`),
+        #   count one down.
+        ld_hdr, ld_items, dec = Signal(), Signal(), Signal()
+        m.d.sync += [ld_hdr.eq(0), ld_items.eq(0), dec.eq(0)]  # unless set below
+        with m.If(ld_hdr):
+            m.d.sync += [left.eq(left_hdr), *(a.eq(f) for a, f in zip(at, at_hdr, strict=True))]
+        with m.Elif(ld_items):
+            m.d.sync += [left.eq(left_items),
+                         *(a.eq(f) for a, f in zip(at, at_items, strict=True))]
+        with m.Elif(dec):
+            m.d.sync += [left.eq(left - 1), at[0].eq(at[1]), at[1].eq(at[2]),
+                         at[2].eq(left == 4)]
 
         j = Signal(range(_REC + 1))  # byte within the current sample item
         crc_i = Signal(range(CRC_BYTES))
@@ -472,19 +487,24 @@ class FramePacketizer(wiring.Component):
             # and 1 (for a frame of one word or none, the reads beyond are of stale words,
             # never sent)
             m.d.sync += advance(pos[0], False)
+            # the frame header's count (plus the records of a peaks frame) loads at the last
+            # byte, so `ld_hdr` is set at the one before; the frame header's first byte counts
+            m.d.sync += [ld_hdr.eq(pos[PACKET_HEADER.size - 2]),
+                         dec.eq(pos[PACKET_HEADER.size - 1])]
             with m.If(pos[PACKET_HEADER.size - 1]):
-                # frame header, plus the records of a peaks frame
-                m.d.sync += load_left(left_hdr, at_hdr)
                 fsm.next("FRAME_HEADER")
         with fsm.state("FRAME_HEADER"):
             m.d.comb += [w_en.eq(1), byte.eq(sh[:8]), bv.eq(1)]
-            # (`left` starts at _HDR or more)
-            m.d.sync += [sh.eq(sh >> 8), *count_left(), *advance(at[1], True)]
+            # each byte sets the next one's update from `at` as it stands (the count a
+            # clock before that byte's): the last byte (`at[0]` next) loads the items'
+            # count, the others count down (`left` starts at _HDR or more, so the first
+            # byte, whose update the link header set, is never the last)
+            m.d.sync += [sh.eq(sh >> 8), *advance(at[1], True),
+                         ld_items.eq(at[1]), dec.eq(~at[0] & ~at[1])]
             with m.If(at[0]):
                 # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
                 # high at this clock, set with the byte before)
-                m.d.sync += [*load_left(left_items, at_items), j.eq(0), crc_i.eq(0),
-                             crc_wait.eq(1)]
+                m.d.sync += [j.eq(0), crc_i.eq(0), crc_wait.eq(1)]
                 with m.If(no_items):
                     fsm.next("CRC")
                 with m.Else():
@@ -498,9 +518,9 @@ class FramePacketizer(wiring.Component):
             # j_last: j == ibytes - 1 (every sample item has 2 bytes or more, so a word
             # loaded is never the last of its item at once)
             j_last_nx = ~j_last & (j == ibytes_m2)
-            m.d.sync += [j_last.eq(j_last_nx), *advance(j_last_nx, True)]
+            m.d.sync += [j_last.eq(j_last_nx), dec.eq(j_last_nx), *advance(j_last_nx, True)]
             with m.If(j_last):
-                m.d.sync += [j.eq(0), *count_left()]
+                m.d.sync += j.eq(0)
                 with m.If(at[0]):
                     fsm.next("CRC")
         with fsm.state("CRC"):

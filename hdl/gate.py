@@ -19,13 +19,14 @@ consumer never sees a partial frame, however long it holds ``ready`` low.
 
 from __future__ import annotations
 
-from amaranth.hdl import Module, Mux, Signal
+from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
 from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 
+from ._bram import DEEPEST
 from ._primitives import _le, _reg, _step, _Store
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
@@ -165,9 +166,17 @@ class Gate(wiring.Component):
             return _reg(m, value, shape, f"{name}_q", True)
 
         gate_len, gate_delay, fine_div = cfg.gate_len, cfg.gate_delay, cfg.fine_div
-        len0 = gate_len == 0  # counts as 1
-        length = q(gate_len | len0, gate_len.shape(), "length")
-        len1 = q(gate_len <= 1, 1, "len1")  # length == 1
+        # gate_len = 0 counts as 1, which matters to bit 0 of `length` alone: `gate_len <= 1`
+        # (bits 1 and up zero) stands for it there. `len_m1` and `len_m2` are not read for a
+        # frame of one sample (`len1`: with no delay the gate never gets busy; after a delay
+        # `left1` ends the frame at its kept sample, and `left_m1` is loaded again before it
+        # is read), so they are plain subtractions. As `gate_len == 0` (taken by synthesis from
+        # a chain's carry) and two LUTs behind it, the choice held the gate alone at 184.7 MHz
+        # in context (seed 2, thirty-sixth session).
+        le1 = gate_len[1:] == 0  # gate_len <= 1
+        low = gate_len[0] | le1  # bit 0 of max(gate_len, 1)
+        length = q(Cat(low, gate_len[1:]), gate_len.shape(), "length")
+        len1 = q(le1, 1, "len1")  # length == 1
         len2 = q(gate_len == 2, 1, "len2")  # length == 2
         no_delay = q(gate_delay == 0, 1, "no_delay")
         delay1 = q(gate_delay == 1, 1, "delay1")
@@ -175,10 +184,8 @@ class Gate(wiring.Component):
         delay_m2 = q(gate_delay - 2, gate_delay.shape(), "delay_m2")
         # the counters' loads while idle: length less 2 (no delay: the trigger's sample is
         # kept) or less 1, chosen at the load
-        # (gate_len = 0 as 1, chosen after the subtraction: the zero test beside the carry
-        # chain, not in front of it, where it held the gate alone at 178 MHz in context)
-        len_m1 = q(Mux(len0, 0, gate_len - 1), gate_len.shape(), "len_m1")
-        len_m2 = q(Mux(len0, -1, gate_len - 2), gate_len.shape(), "len_m2")
+        len_m1 = q(gate_len - 1, gate_len.shape(), "len_m1")
+        len_m2 = q(gate_len - 2, gate_len.shape(), "len_m2")
         div_le1 = q(fine_div <= 1, 1, "div_le1")
         div2 = q(fine_div == 2, 1, "div2")
         div_m2 = q(fine_div - 2, fine_div.shape(), "div_m2")
@@ -188,7 +195,13 @@ class Gate(wiring.Component):
         # Frame store: the samples and the headers of the admitted frames. The admission test
         # below (length <= free, free counting depth - entries held) guarantees room for every
         # write.
-        data = m.submodules.data = _Store(GATE_OUT.size, self.depth)
+        # The samples' blocks in as few banks as the deepest block allows (one, for the default
+        # depth: 4 096 x 4, eleven blocks, where 2 048 x 9 takes ten in two banks). The two
+        # banks' mux put a LUT fed from blocks apart on the read's path, 4.68 ns of routing
+        # from one of them, the one-lane pipeline's worst path on seed 1 (6.50 ns, thirty-sixth
+        # session); in one bank each bit's consumer can sit by its block.
+        banks = max(1, _Store.memory_words(self.depth) // DEEPEST)
+        data = m.submodules.data = _Store(GATE_OUT.size, self.depth, max_banks=banks)
         hdrs = m.submodules.hdrs = _Store(_STORED.size, self.header_depth)
 
         # Time and event counters (section 3): `fine` ticks every `fine_div` samples after the
@@ -198,11 +211,12 @@ class Gate(wiring.Component):
         # line sync is the first of a new tick period, and reads `fine_div` (then counting
         # fine_div - 2 more steps, the tick step excluded). `fine1` (= fine + 1) is kept as a
         # register beside `fine`, and `top1` (fine1 == maximum) beside it, so that the fine
-        # step is a copy and an increment, and no compare feeds them. Once `fine` is at its
-        # maximum `fine_top` stops it, and `fine1`, then past the maximum, is not read.
+        # step is a copy and an increment, and no compare feeds them. `fine1` saturates at the
+        # maximum (it adds ~top1), so once `fine` is there a tick copies the maximum again:
+        # the counter's enable need not test `fine_top`, which then only sets `fine_sat`.
         fine = Signal(FINE_BITS, init=self.fine_start)
-        fine1 = Signal(FINE_BITS, init=(self.fine_start + 1) & _FINE_MAX)
-        top1 = Signal(init=self.fine_start + 1 == _FINE_MAX)  # fine1 == _FINE_MAX
+        fine1 = Signal(FINE_BITS, init=min(self.fine_start + 1, _FINE_MAX))
+        top1 = Signal(init=self.fine_start + 1 >= _FINE_MAX)  # fine1 == _FINE_MAX
         fine_top = Signal(init=self.fine_start == _FINE_MAX)  # fine == _FINE_MAX
         fine_sat = Signal()
         renew = Signal(init=1)  # the next step is the first since a tick
@@ -248,15 +262,16 @@ class Gate(wiring.Component):
             m.d.sync += [fine.eq(div_le1), fine1.eq(div_le1 + 1), fine_top.eq(0), top1.eq(0),
                          fine_sat.eq(0)]
         with m.Elif(step & tick_ns):
+            # fine1 is at most _FINE_MAX and stays there: so fine1 == _FINE_MAX - 1 or more
+            # is fine1 >= _FINE_MAX - 1, a carry chain's sign, not a tree of LUTs over the
+            # whole width. With `fine_top` in this enable (the counter stopped at the top),
+            # `renew` -> the tick -> `fine_top`'s LUT -> the enable of the 48 flip-flops of
+            # `fine` and `fine1` was three LUTs, the one-lane pipeline's worst path on seed 1
+            # (6.27 ns, 5.0 of routing, thirty-seventh session).
+            m.d.sync += [fine.eq(fine1), fine_top.eq(top1), fine1.eq(fine1 + ~top1),
+                         top1.eq(_le(_FINE_MAX - 1, fine1))]
             with m.If(fine_top):
                 m.d.sync += fine_sat.eq(1)
-            with m.Else():
-                # fine1 is at most _FINE_MAX here, and at _FINE_MAX this step sets fine_top,
-                # which stops the counter (top1 unread) until a line sync clears both: so
-                # fine1 == _FINE_MAX - 1 may be fine1 >= _FINE_MAX - 1, a carry chain's sign,
-                # not a tree of LUTs over the whole width
-                m.d.sync += [fine.eq(fine1), fine_top.eq(top1), fine1.eq(fine1 + 1),
-                             top1.eq(_le(_FINE_MAX - 1, fine1))]
         fine_now = Mux(sync, 0, fine)
 
         # Gate state: busy from the accepted trigger to the frame's last sample (inclusive).

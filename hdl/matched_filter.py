@@ -75,6 +75,8 @@ SURFACE_APPLY = 2
 _K_SHAPE = unsigned((K_MAX - 1).bit_length())
 _J_BITS = (L_MAX - 1).bit_length()
 assert L_MAX == 1 << _J_BITS, "addr = k * L_MAX + j splits into bit fields"
+#: Low bits of a tap number decoded apart from the high ones in the coefficient write chain.
+_J_LO = 3
 
 #: A sample entering the filter: the stitched value and the frame markers.
 FILTER_IN = data.StructLayout({"x": STITCHED, "first": unsigned(1), "last": unsigned(1)})
@@ -304,12 +306,22 @@ def _coef_chain(m: Module, coef, groups: int, read_after: int = 2):
     # into the multipliers). A link per tap group leaves each memory one wide net, the one to
     # its own DSP. A chain rather than a tree of copies: its links hold different values, so
     # synthesis cannot merge them back into one.
-    link_shape = data.StructLayout({"valid": unsigned(1), **dict(COEF_WRITE.members)})
+    # A link carries the write's tap `j` decoded, as two one-hot fields (`j_hi`: j >> 3, zero
+    # without a write; `j_lo`: j & 7), so that a memory's write enable is one LUT of two bits
+    # (`_coef_memory`). The compare of the six address bits and the valid bit, two LUTs that
+    # synthesis shared among the taps, was the one-lane filter's worst path alone on seed 3
+    # (5.28 ns, 2.8 of it the route from a shared LUT, thirty-sixth session).
+    addr = coef.payload.addr
+    link_shape = data.StructLayout({"j_hi": unsigned(1 << (_J_BITS - _J_LO)),
+                                    "j_lo": unsigned(1 << _J_LO),
+                                    "k": unsigned(len(addr) - _J_BITS),
+                                    "data": COEF_WRITE.members["data"]})
     links = [Signal(link_shape, name=f"wlink{g}") for g in range(groups)]
     # registers before link 0: the write's own (edge e) and read_after - 1 more
     chain = [Signal(link_shape, name=f"wpre{i}") for i in range(read_after - 1)] + links
-    m.d.sync += [chain[0].valid.eq(coef.valid & coef.ready),
-                 chain[0].addr.eq(coef.payload.addr), chain[0].data.eq(coef.payload.data)]
+    m.d.sync += [chain[0].j_hi.eq(Mux(coef.valid & coef.ready, 1 << addr[_J_LO:_J_BITS], 0)),
+                 chain[0].j_lo.eq(1 << addr[:_J_LO]), chain[0].k.eq(addr[_J_BITS:]),
+                 chain[0].data.eq(coef.payload.data)]
     m.d.sync += [chain[g].eq(chain[g - 1]) for g in range(1, len(chain))]
     # A write taken at edge e reaches the last group's memory at edge e + groups + read_after
     # - 1; a sample accepted at edge a reads its coefficients in the clock that starts at edge
@@ -331,9 +343,10 @@ def _coef_memory(m: Module, name: str, links, link: int, j: int, g: int, read_ad
     """Tap ``j``'s coefficient memory (``K_MAX`` words of LUT RAM), written from ``links[link]``
     of :func:`_coef_chain` and read asynchronously at ``read_addr``; returns the read data.
 
-    Its write enable is a register of its own (``we{name}``), decoded from that link a clock
-    ahead; the address and data then come from the next link, which holds that write a clock
-    later, so no data register is added (the chain has one link more than the groups). The
+    Its write enable is a register of its own (``we{name}``), one LUT of that link's one-hot
+    tap fields, a clock ahead; the address and data then come from the next link, which holds
+    that write a clock later, so no data register is added (the chain has one link more than
+    the groups). The
     memory holds ``h[k][j]`` at address ``k ^ g``, for tap group ``g``, which reads with the
     template copy ``k ^ g``. Decoded in the clock of the write, the enable (a link's valid
     and the tap compare, into the LUT RAM's write enable, whose setup is long) was the worst
@@ -345,8 +358,8 @@ def _coef_memory(m: Module, name: str, links, link: int, j: int, g: int, read_ad
     rp = mem.read_port(domain="comb")
     lk, lk_next = links[link], links[link + 1]
     we = Signal(name=f"we{name}")
-    m.d.sync += we.eq(lk.valid & (lk.addr[:_J_BITS] == j))
-    m.d.comb += [wp.addr.eq(lk_next.addr[_J_BITS:] ^ g), wp.data.eq(lk_next.data),
+    m.d.sync += we.eq(lk.j_hi[j >> _J_LO] & lk.j_lo[j & ((1 << _J_LO) - 1)])
+    m.d.comb += [wp.addr.eq(lk_next.k ^ g), wp.data.eq(lk_next.data),
                  wp.en.eq(we), rp.addr.eq(read_addr)]
     return rp.data
 

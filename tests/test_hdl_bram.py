@@ -36,7 +36,7 @@ from hdl.tb.cosim import BENCH_DIR, Design, build
 
 
 @pytest.mark.parametrize("width, depth, tiling", [
-    (42, 4096, (9, 2048, 5, 2)),  # the gate's frame store: 10 blocks
+    (42, 4096, (9, 2048, 5, 2)),  # fewest blocks for the gate's store: 10, in two banks
     (9, 32768, (9, 2048, 1, 16)),  # the packetizer's byte FIFO: 16 blocks
     (24, 4096, (4, 4096, 6, 1)),  # the packetizer's buffer: 6 blocks, no bank mux
     (18, 1024, (18, 1024, 1, 1)),
@@ -50,7 +50,7 @@ def test_tiling(width, depth, tiling):
 @pytest.mark.parametrize("width, depth, max_banks, tiling", [
     (9, 32768, 2, (1, 16384, 9, 2)),  # the packetizer's byte FIFO: 18 blocks, a 2-way mux
     (9, 32768, 16, (9, 2048, 1, 16)),
-    (42, 4096, 1, (4, 4096, 11, 1)),
+    (42, 4096, 1, (4, 4096, 11, 1)),  # the gate's frame store: 11 blocks, no bank mux
     (9, 65536, 4, (1, 16384, 9, 4)),
 ])
 def test_tiling_max_banks(width, depth, max_banks, tiling):

@@ -257,6 +257,18 @@ class TestAmaranthSim:
         assert h["shot"].tolist() == [(1 << SHOT_BITS) - 2, (1 << SHOT_BITS) - 1, 0, 1, 2, 3, 4]
         assert h["coarse_event"].tolist() == [(1 << COARSE_BITS) - 1] * 5 + [0, 1]
 
+    def test_counter_starts_at_its_maximum(self):
+        """fine_start at the maximum: `fine1` starts there too (it saturates, never wraps),
+        so the ticks before a line sync keep `fine` at the maximum."""
+        start = {"fine_start": FINE_MAX}
+        sc = Scenario([Segment(cfg(), 12, triggers=[0, 1, 3, 7], syncs=[6])], start=start)
+        res = simulate(Gate(**SMALL, **start), **sc.traffic())
+        check(res, sc)
+        h = res.sinks["header"]
+        assert h["fine_time"].tolist() == [FINE_MAX, FINE_MAX, FINE_MAX, 1]
+        sat = (h["flags"] & FrameFlag.FINE_SATURATED) != 0
+        assert sat.tolist() == [False, True, True, False]
+
     @pytest.mark.parametrize(("length", "header_depth", "admitted"),
                              [(5, 4, [0]), (2, 2, [0, 1]), (8, 4, [0]), (9, 4, [])])
     def test_drop_decisions(self, length, header_depth, admitted):
