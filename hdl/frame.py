@@ -330,16 +330,19 @@ class FramePacketizer(wiring.Component):
         seq = Signal(8)
         pkt = Signal(8 * PACKET_HEADER.size)  # sync, type, seq, length (the CRC bytes unused)
         sh = Signal(8 * (_HDR + _REC_SLOTS * _REC))  # frame header then the two records
-        # The item being sent, as read: loaded only (its byte chosen by `j`), so that the
-        # block RAM's output goes straight into a register (a shift mux behind the block's
-        # 5.8 ns unregistered output made 9.3 ns, 107 MHz; a 32-bit word whose top byte only
-        # repeated bit 23 had Yosys rebuild it with a LUT there, 8.0 ns).
-        word = Signal(_KEPT)
-        # `word` takes the buffer's output at the frame header's last byte and at a sample
-        # item's last (`j_last`): its enable a register (`word_en`), not the state's
-        # decode (that, with `left == 1`, was the worst path: 5.7 ns, 4.4 of routing)
-        with m.If(word_en):
-            m.d.sync += word.eq(buf.r_data)
+        # The item being sent (`item`), its next byte lowest: loaded from the buffer's output
+        # register, with a filtered item's sign byte, at the frame header's last byte and at
+        # a sample item's last (`j_last`), by `word_en`, a register (the state's decode there,
+        # with `left == 1`, was the worst path: 5.7 ns, 4.4 of routing); shifted down a byte
+        # at every other clock of SAMPLES; cleared in CRC. So outside SAMPLES it is zero until
+        # the frame header's last byte loads it, as `pkt` is zero outside LINK_HEADER, and the
+        # byte sent is an OR of three sources, one LUT: chosen among the three states and the
+        # item's four bytes (by `j`), it was the one-lane pipeline's worst path on a seed of
+        # the thirty-sixth session (29 rows from the registers to `q_byte`). (Behind the
+        # block's 5.8 ns unregistered output, before its output register was used, a shift
+        # there made 9.3 ns, 107 MHz.) The load comes after the state machine, so that it
+        # wins over SAMPLES' shift.
+        item = Signal(_KEPT + 8)
         # the link header's byte, one-hot: its compares (the CRC's range, the last byte) are
         # single bits (`pos == 7` -> the state's loads was the pipeline's worst path, 7.7 ns)
         pos = Signal(PACKET_HEADER.size)
@@ -388,6 +391,8 @@ class FramePacketizer(wiring.Component):
         crc_i = Signal(range(CRC_BYTES))
         crc_wait = Signal()  # the first clock of CRC: the last body byte is not in the CRC yet
         byte = Signal(8)
+        byte_sh = Signal(8)  # FRAME_HEADER's byte (`sh` is loaded before it, in DECIDE)
+        m.d.comb += byte.eq(pkt[:8] | byte_sh | item[:8])  # see `item`
         w_en = Signal()
         w_last = Signal()
         hv, hs, bv = Signal(), Signal(), Signal()
@@ -479,7 +484,7 @@ class FramePacketizer(wiring.Component):
                              hdr_rdy.eq(1)]
                 fsm.next("HEADER")
         with fsm.state("LINK_HEADER"):
-            m.d.comb += [w_en.eq(1), byte.eq(pkt[:8]),
+            m.d.comb += [w_en.eq(1),
                          src.eq(Mux(pos[6], 1, Mux(pos[7], 2, 0))),
                          hv.eq(pos[2:6].any()), hs.eq(pos[2])]
             m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos << 1)]
@@ -494,7 +499,7 @@ class FramePacketizer(wiring.Component):
             with m.If(pos[PACKET_HEADER.size - 1]):
                 fsm.next("FRAME_HEADER")
         with fsm.state("FRAME_HEADER"):
-            m.d.comb += [w_en.eq(1), byte.eq(sh[:8]), bv.eq(1)]
+            m.d.comb += [w_en.eq(1), byte_sh.eq(sh[:8]), bv.eq(1)]
             # each byte sets the next one's update from `at` as it stands (the count a
             # clock before that byte's): the last byte (`at[0]` next) loads the items'
             # count, the others count down (`left` starts at _HDR or more, so the first
@@ -512,8 +517,8 @@ class FramePacketizer(wiring.Component):
         with fsm.state("SAMPLES"):
             # `left` counts items; the next word waits in the buffer's output register, and
             # the one after it in its first stage, while this one is sent
-            item_out = Cat(word, word[-1].replicate(8))  # a filtered item's sign byte
-            m.d.comb += [w_en.eq(1), byte.eq(item_out.word_select(j[:2], 8)), bv.eq(1)]
+            m.d.comb += [w_en.eq(1), bv.eq(1)]
+            m.d.sync += item.eq(item >> 8)
             m.d.sync += j.eq(j + 1)
             # j_last: j == ibytes - 1 (every sample item has 2 bytes or more, so a word
             # loaded is never the last of its item at once)
@@ -528,13 +533,15 @@ class FramePacketizer(wiring.Component):
             # clocks after its write decision (`q_byte`, then its data term)
             m.d.comb += [w_en.eq(~crc_wait), src.eq(3),
                          w_last.eq(crc_i == CRC_BYTES - 1)]
-            m.d.sync += crc_wait.eq(0)
+            m.d.sync += [crc_wait.eq(0), item.eq(0)]
             with m.If(~crc_wait):
                 m.d.sync += crc_i.eq(crc_i + 1)
                 with m.If(crc_i == CRC_BYTES - 1):
                     m.d.sync += hdr_rdy.eq(1)
                     fsm.next("HEADER")
         fsm.close()
+        with m.If(word_en):
+            m.d.sync += item.eq(Cat(buf.r_data, buf.r_data[-1].replicate(8)))
 
         m.d.comb += [
             self.o.payload.eq(fifo.r.payload),
