@@ -263,7 +263,10 @@ class FramePacketizer(wiring.Component):
         # bytes per sample item less two, a register chosen by the one-hot kind flags, as
         # `len_bytes` below (a peaks frame sends no sample items): decoded from `frame_type`
         # in the clock of the `j` compare it was the worst path (6.0 ns)
-        ibytes_m2 = Signal(range(_REC + 1))
+        # (two bits, as `j`: a sample item has 2 to 4 bytes, so `j == ibytes_m2` is one LUT;
+        # as counts up to a record's 16 bytes it was a compare of five bits, two LUTs on the
+        # path to the buffer's clock enables)
+        ibytes_m2 = Signal(range(_WORD // 8 - 1))
         m.d.sync += ibytes_m2.eq(reduce(or_, (Mux(flag, item_bytes(t) - 2, 0)
                                               for t, flag in kind_q.items())))
         # Frame bytes = header + length x item size, by shifts and adds (item sizes 3, 2, 4, 16):
@@ -278,6 +281,11 @@ class FramePacketizer(wiring.Component):
         len_bytes = Signal(_PKT_LEN)
         # chosen by the one-hot kind flags (registers; a peaks frame has none, and its
         # `len_bytes` is not used): by a decode of `frame_type` it was the worst path (5.4 ns)
+        # The 3-byte items' `3 length` is a register of its own, loaded with the header (from
+        # the port's payload, as `hdr` is): made from `hdr` in `len_bytes`' clock, its carry
+        # chain and the choice after it were the one-lane pipeline's worst path on seed 1
+        # (6.56 ns, 4.5 of it routing, thirty-seventh session).
+        len_x3 = Signal(_PKT_LEN)
         scaled = []
         for t, flag in kind_q.items():
             b = item_bytes(t)
@@ -285,7 +293,7 @@ class FramePacketizer(wiring.Component):
                 value = hdr.length << (b.bit_length() - 1)
             else:
                 assert b == 3, "sample item sizes are 2, 3 and 4 bytes"
-                value = (hdr.length << 1) + hdr.length
+                value = len_x3
             scaled.append(Mux(flag, value, 0))
         m.d.sync += len_bytes.eq(reduce(or_, scaled))
         body_samples = Signal(_PKT_LEN)
@@ -353,9 +361,11 @@ class FramePacketizer(wiring.Component):
         left_hdr = Signal.like(left)  # frame header, plus the records of a peaks frame
         left_items = Signal.like(left)  # samples to send
         no_items = Signal()
-        m.d.sync += [left_hdr.eq(_HDR + Mux(peaks_q, length * _REC, 0)),
-                     left_items.eq(Mux(peaks_q, 0, length)),
-                     no_items.eq(peaks_q | (length == 0))]
+        # (from `count` and `hdr.length` apart, not through `length`'s choice by `peaks_q`:
+        # the choice and the 16-bit zero test behind it were four levels into `no_items`)
+        m.d.sync += [left_hdr.eq(_HDR + Mux(peaks_q, count * _REC, 0)),
+                     left_items.eq(Mux(peaks_q, 0, hdr.length)),
+                     no_items.eq(peaks_q | (hdr.length == 0))]
         # `left == 1, 2, 3` as registers (`at[k - 1]`), set with `left`: from the same compares
         # on the (settled) value it is loaded with, or shifted down as it counts down (the
         # 17-bit equalities into the state's decisions and the word's enable were the
@@ -387,7 +397,7 @@ class FramePacketizer(wiring.Component):
             m.d.sync += [left.eq(left - 1), at[0].eq(at[1]), at[1].eq(at[2]),
                          at[2].eq(left == 4)]
 
-        j = Signal(range(_REC + 1))  # byte within the current sample item
+        j = Signal(range(_WORD // 8))  # byte within the current sample item
         crc_i = Signal(range(CRC_BYTES))
         crc_wait = Signal()  # the first clock of CRC: the last body byte is not in the CRC yet
         byte = Signal(8)
@@ -428,7 +438,9 @@ class FramePacketizer(wiring.Component):
                             "LINK_HEADER", "FRAME_HEADER", "SAMPLES", "CRC"), name="pack")
         with fsm.state("HEADER"):
             with m.If(self.header.valid):
+                got_len = self.header.payload.length
                 m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0), full.eq(0),
+                             len_x3.eq((got_len << 1) + got_len),
                              peaks_q.eq(self.header.payload.frame_type == FrameType.PEAKS),
                              *(k.eq(self.header.payload.frame_type == t)
                                for t, k in kind_q.items()),
