@@ -87,7 +87,7 @@ from amaranth.lib import data
 from ._peak_common import _POS, _QUEUE
 from ._peak_decide import decide
 from ._peak_stats import Windows, window_statistics
-from ._primitives import _reg, _room, _step, _Store, _sub_sign
+from ._primitives import _le, _reg, _room, _step, _Store, _sub_sign
 from .matched_filter import TAG_WIDTH
 from .peak_detect import (
     _P_MAX_LOG2,
@@ -239,7 +239,9 @@ def elaborate(top, platform):
     # live beat, after an add, were the worst path twice).
     need_at = [_reg(m, W2P + (2 - L - c), pos, f"need_at{c}", True) for c in range(L + 1)]
     first_needs = [_reg(m, W2P + 2 <= c, 1, f"first_needs{c}", True) for c in range(L + 1)]
-    ms_le = [_reg(m, cfg.min_sep <= j, 1, f"ms_le{j}", True) for j in range(3 * L)]
+    # (each a carry chain's sign: as compares with constants, Yosys shared their LUTs into
+    # a tree four levels deep from the register)
+    ms_le = [_reg(m, _le(cfg.min_sep, j), 1, f"ms_le{j}", True) for j in range(3 * L)]
     # min_sep + j - 1 per lane, so that "c + min_sep" of a lane's centre is one add; capped
     # where no centre of a frame can reach it (from min_sep - 1 registered: an add and a
     # compare side by side, then the choice)
