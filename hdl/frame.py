@@ -361,11 +361,16 @@ class FramePacketizer(wiring.Component):
         left_hdr = Signal.like(left)  # frame header, plus the records of a peaks frame
         left_items = Signal.like(left)  # samples to send
         no_items = Signal()
-        # (from `count` and `hdr.length` apart, not through `length`'s choice by `peaks_q`:
-        # the choice and the 16-bit zero test behind it were four levels into `no_items`)
+        # (from `count` and `hdr.length` apart, not through `length`'s choice by `peaks_q`;
+        # and the tests of a small length, below, through `len_hi0` (length < 4), a register
+        # of its own: the choice and the 16-bit zero test behind it were four levels into
+        # `no_items`, and the 17-bit equalities of `left_items` four into its `at` flags)
+        len_hi0 = Signal()
+        m.d.sync += len_hi0.eq(hdr.length[2:] == 0)
+        len_lo = hdr.length[:2]
         m.d.sync += [left_hdr.eq(_HDR + Mux(peaks_q, count * _REC, 0)),
                      left_items.eq(Mux(peaks_q, 0, hdr.length)),
-                     no_items.eq(peaks_q | (hdr.length == 0))]
+                     no_items.eq(peaks_q | (len_hi0 & (len_lo == 0)))]
         # `left == 1, 2, 3` as registers (`at[k - 1]`), set with `left`: from the same compares
         # on the (settled) value it is loaded with, or shifted down as it counts down (the
         # 17-bit equalities into the state's decisions and the word's enable were the
@@ -374,7 +379,7 @@ class FramePacketizer(wiring.Component):
         at_hdr = [Signal(name=f"left_hdr_at{k}") for k in (1, 2, 3)]
         at_items = [Signal(name=f"left_items_at{k}") for k in (1, 2, 3)]
         m.d.sync += [f.eq(left_hdr == k) for k, f in enumerate(at_hdr, 1)]
-        m.d.sync += [f.eq(left_items == k) for k, f in enumerate(at_items, 1)]
+        m.d.sync += [f.eq(~peaks_q & len_hi0 & (len_lo == k)) for k, f in enumerate(at_items, 1)]
 
         # Which of its three updates `left` takes at a clock, as registers set a clock ahead
         # (`ld_hdr`, `ld_items`, `dec`; at most one is set), so that each bit's next value is
@@ -394,8 +399,11 @@ class FramePacketizer(wiring.Component):
             m.d.sync += [left.eq(left_items),
                          *(a.eq(f) for a, f in zip(at, at_items, strict=True))]
         with m.Elif(dec):
+            # `left` is 1 or more at a count (the last item's makes it 0, and CRC follows),
+            # so `left == 4` is "4 or less and none of 1, 2, 3": a carry chain's sign and a
+            # LUT, where the 17-bit equality was three levels before the choice
             m.d.sync += [left.eq(left - 1), at[0].eq(at[1]), at[1].eq(at[2]),
-                         at[2].eq(left == 4)]
+                         at[2].eq(_le(left, 4) & ~at[0] & ~at[1] & ~at[2])]
 
         j = Signal(range(_WORD // 8))  # byte within the current sample item
         crc_i = Signal(range(CRC_BYTES))
