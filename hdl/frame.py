@@ -407,6 +407,8 @@ class FramePacketizer(wiring.Component):
 
         j = Signal(range(_WORD // 8))  # byte within the current sample item
         crc_i = Signal(range(CRC_BYTES))
+        crc_end = Signal()  # CRC: this clock writes the last CRC byte
+        m.d.sync += crc_end.eq(0)  # unless set below
         crc_wait = Signal()  # the first clock of CRC: the last body byte is not in the CRC yet
         byte = Signal(8)
         byte_sh = Signal(8)  # FRAME_HEADER's byte (`sh` is loaded before it, in DECIDE)
@@ -551,14 +553,15 @@ class FramePacketizer(wiring.Component):
         with fsm.state("CRC"):
             # a clock with no byte, then the four: the body CRC's state takes in a byte two
             # clocks after its write decision (`q_byte`, then its data term)
-            m.d.comb += [w_en.eq(~crc_wait), src.eq(3),
-                         w_last.eq(crc_i == CRC_BYTES - 1)]
+            # `crc_end` (the last CRC byte's clock) is a register set at the byte before:
+            # decoded from `crc_i` and `crc_wait` there, the state's exit was four levels
+            m.d.comb += [w_en.eq(~crc_wait), src.eq(3), w_last.eq(crc_end)]
             m.d.sync += [crc_wait.eq(0), item.eq(0)]
             with m.If(~crc_wait):
-                m.d.sync += crc_i.eq(crc_i + 1)
-                with m.If(crc_i == CRC_BYTES - 1):
-                    m.d.sync += hdr_rdy.eq(1)
-                    fsm.next("HEADER")
+                m.d.sync += [crc_i.eq(crc_i + 1), crc_end.eq(crc_i == CRC_BYTES - 2)]
+            with m.If(crc_end):
+                m.d.sync += hdr_rdy.eq(1)
+                fsm.next("HEADER")
         fsm.close()
         with m.If(word_en):
             m.d.sync += item.eq(Cat(buf.r_data, buf.r_data[-1].replicate(8)))
