@@ -325,7 +325,14 @@ class _Store(wiring.Component):
             m.d.sync += self.r.valid.eq(0)
         # count >= 2 as the sign of count - 2: a carry chain from the register (a compare
         # `count != 1` became a tree of LUTs, the gate's worst path at 188.5 MHz)
-        ne_nx = keep | Mux(take_c, _le(2, count), ~empty)
+        # As an OR of terms, the one with the chain's sign (`~empty & ge2`: an entry leaves
+        # and one more stays, or none leaves) beside the one with the port's `r.ready` (none
+        # leaves, from registers and that input alone), so that one LUT follows the chain:
+        # as a choice by `take_c`, the chain -> two LUTs -> `ne` was the one-lane pipeline's
+        # worst path on seed 1 (6.28 ns, thirty-seventh session).
+        stays = Signal()  # ~take_c & ~empty: nothing moves to the first stage
+        m.d.comb += stays.eq(~empty & ~idle1 & ~free_o)
+        ne_nx = keep | (~empty & _le(2, count)) | stays
         m.d.sync += [count.eq(_step(count, keep, take_c)), ne.eq(ne_nx), empty.eq(~ne_nx),
                      idle1.eq(~take_c & (idle1 | move_c)),
                      idle.eq(idle1 & free_o)]  # = ~move_c & free_o
