@@ -327,9 +327,11 @@ class _Store(wiring.Component):
         # `count != 1` became a tree of LUTs, the gate's worst path at 188.5 MHz)
         # As an OR of terms, the one with the chain's sign (`~empty & ge2`: an entry leaves
         # and one more stays, or none leaves) beside the one with the port's `r.ready` (none
-        # leaves, from registers and that input alone), so that one LUT follows the chain:
+        # leaves, from registers and that input alone), so that one LUT can follow the chain:
         # as a choice by `take_c`, the chain -> two LUTs -> `ne` was the one-lane pipeline's
-        # worst path on seed 1 (6.28 ns, thirty-seventh session).
+        # worst path on seed 1 (6.28 ns, thirty-seventh session). Yosys may still fold it into
+        # two LUTs (it did: the same path, 6.70 ns, on a later seed); an exact cure would keep
+        # `count >= 2, 3, 4` registered from the last clock's count, with its last move.
         stays = Signal()  # ~take_c & ~empty: nothing moves to the first stage
         m.d.comb += stays.eq(~empty & ~idle1 & ~free_o)
         ne_nx = keep | (~empty & _le(2, count)) | stays
