@@ -18,7 +18,7 @@ from amaranth.hdl import Const, Module, Mux, Signal, signed, unsigned
 from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from ._bram import BlockRAM
+from ._bram import DEEPEST, BlockRAM
 
 __all__ = ["RAM_DELAY_MIN", "OneHotFSM", "RegisterSlice", "_Store", "_delay", "_delay_to", "_le",
            "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub_sign", "_sum_tree",
@@ -280,6 +280,12 @@ class _Store(wiring.Component):
         """Words of the memory behind a store of ``depth`` entries: ``depth`` rounded up to
         a power of two, at least 2."""
         return 1 << max(1, (depth - 1).bit_length())
+
+    @staticmethod
+    def fewest_banks(depth: int) -> int:
+        """The fewest banks of block RAM the memory of a store of ``depth`` entries can be
+        tiled in (``max_banks``): one per ``DEEPEST`` words, at least one."""
+        return max(1, _Store.memory_words(depth) // DEEPEST)
 
     def elaborate(self, platform):
         m = Module()

@@ -42,7 +42,7 @@ from model.link import (
 from model.matched_filter import OUT_WIDTH
 from model.registers import by_name
 
-from ._bram import DEEPEST, BlockRAM
+from ._bram import BlockRAM
 from ._crc import SplitCRC
 from ._primitives import OneHotFSM, RegisterSlice, _le, _step, _Store
 from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
@@ -172,7 +172,7 @@ class FramePacketizer(wiring.Component):
         # blocks in as few banks as the deepest block (16 384 x 1) allows: the 16-way bank mux
         # of the fewest blocks (2 048 x 9) was the pipeline's worst path in context, from the
         # bank select to the consumer (7.14 ns); two banks cost 18 blocks instead of 16.
-        banks = max(2, _Store.memory_words(self.capacity) // DEEPEST)
+        banks = max(2, _Store.fewest_banks(self.capacity))
         fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity, max_banks=banks)
         # The payload buffer is read through the block RAM's two registers, advanced together
         # (`adv`), two words ahead of the one sent: a read straight out of the block was

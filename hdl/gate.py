@@ -26,7 +26,6 @@ from amaranth.lib.wiring import In, Out
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
 from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 
-from ._bram import DEEPEST
 from ._primitives import _le, _reg, _step, _Store
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
@@ -200,8 +199,8 @@ class Gate(wiring.Component):
         # banks' mux put a LUT fed from blocks apart on the read's path, 4.68 ns of routing
         # from one of them, the one-lane pipeline's worst path on seed 1 (6.50 ns, thirty-sixth
         # session); in one bank each bit's consumer can sit by its block.
-        banks = max(1, _Store.memory_words(self.depth) // DEEPEST)
-        data = m.submodules.data = _Store(GATE_OUT.size, self.depth, max_banks=banks)
+        data = m.submodules.data = _Store(GATE_OUT.size, self.depth,
+                                          max_banks=_Store.fewest_banks(self.depth))
         hdrs = m.submodules.hdrs = _Store(_STORED.size, self.header_depth)
 
         # Time and event counters (section 3): `fine` ticks every `fine_div` samples after the
@@ -272,9 +271,9 @@ class Gate(wiring.Component):
             # `renew` -> the tick -> `fine_top`'s LUT -> the enable of the 48 flip-flops of
             # `fine` and `fine1` was three LUTs, the one-lane pipeline's worst path on seed 1
             # (6.27 ns, 5.0 of routing, thirty-seventh session).
+            top_next = _le(_FINE_MAX - 1, fine1)
             m.d.sync += [fine.eq(fine1), fine_top.eq(top1), fine1.eq(fine1 + below1),
-                         top1.eq(_le(_FINE_MAX - 1, fine1)),
-                         below1.eq(~_le(_FINE_MAX - 1, fine1))]
+                         top1.eq(top_next), below1.eq(~top_next)]
             with m.If(fine_top):
                 m.d.sync += fine_sat.eq(1)
         fine_now = Mux(sync, 0, fine)
