@@ -293,7 +293,14 @@ def elaborate(top, platform):
             m.d.sync += [h1.eq(Mux(s_valid, skid.as_value(), inb.as_value())),
                          d1_valid.eq(s_valid | top.i.valid), s_valid.eq(0)]
         with m.Elif(accept):
-            m.d.sync += [skid.eq(inb), s_valid.eq(1)]
+            m.d.sync += s_valid.eq(1)
+        # The skid loads the port's beat at every clock while it is empty: its value matters
+        # only once it is full, and it fills at a clock when it loads the port. As `~free &
+        # accept` its enable was two LUTs from the fork's `took_p` and D1's `go`: took_p ->
+        # the port's valid -> the skid's enable, 6.33 ns (5.1 of it routing), the one-lane
+        # pipeline's worst path on seed 1 (thirty-seventh session).
+        with m.If(~s_valid):
+            m.d.sync += skid.eq(inb)
         fresh = _reg(m, loads, 1, "fresh")  # D1 holds a beat not yet seen by the statistics
 
         # thr_tag: the frame whose threshold the statistics' registers hold (loaded as

@@ -250,6 +250,10 @@ class _Store(wiring.Component):
     max_banks : int, optional
         For the block RAM (:class:`hdl._bram.BlockRAM`): at most this many banks of blocks,
         so at most a ``max_banks``-way mux between the blocks and ``r.payload``.
+    fabric_stage : bool, optional
+        A third read stage, a register in the fabric after the block's output register
+        (``r.payload``): the word then reaches the consumer in two hops, the first to a
+        register the placer can put by the blocks (default False).
 
     Attributes
     ----------
@@ -266,12 +270,15 @@ class _Store(wiring.Component):
 
     Notes
     -----
-    Latency: an entry written at clock t is valid on ``r`` at clock t + 3; one entry per clock
-    sustained while ``r.ready`` stays high.
+    Latency: an entry written at clock t is valid on ``r`` at clock t + 3 (t + 4 with
+    ``fabric_stage``); one entry per clock sustained while ``r.ready`` stays high, from a
+    depth of 4 (5 with ``fabric_stage``).
     """
 
-    def __init__(self, width: int, depth: int, max_banks: int | None = None):
+    def __init__(self, width: int, depth: int, max_banks: int | None = None,
+                 fabric_stage: bool = False):
         self.width, self.depth, self.max_banks = width, depth, max_banks
+        self.fabric_stage = fabric_stage
         super().__init__({"w_data": In(width), "w_en": In(1), "w_keep": In(1),
                           "r": Out(stream.Signature(width))})
 
@@ -302,21 +309,34 @@ class _Store(wiring.Component):
         count = Signal(range(self.depth + 1))  # entries in the memory (read stages not)
         ne = Signal()  # count != 0
         v1 = Signal()  # the first read stage holds an entry
-        move = v1 & (~self.r.valid | self.r.ready)  # first stage -> output register
-        take = ne & (~v1 | ~self.r.valid | self.r.ready)  # oldest entry -> first stage
+        free_r = ~self.r.valid | self.r.ready  # `r` can take an entry at this clock
+        if self.fabric_stage:
+            v2 = Signal()  # the block's output register holds an entry
+            free2 = ~v2 | free_r  # ... and it can take one
+        else:
+            free2 = free_r
+        move = v1 & free2  # first stage -> the next
+        take = ne & (~v1 | free2)  # oldest entry -> first stage
         # The same decisions again, from copies of the flags kept inverted (so that synthesis
         # does not merge them with the originals), for the count and the flags: `take` and
         # `move` go to every block of the memory, and the count need not follow them there.
         empty = Signal(init=1)  # ~ne
         idle1 = Signal(init=1)  # ~v1
         idle = Signal(init=1)  # ~r.valid
-        free_o = idle | self.r.ready  # the output register can take an entry
-        move_c = ~idle1 & free_o
-        take_c = ~empty & (idle1 | free_o)
+        free_o = idle | self.r.ready  # = free_r
+        if self.fabric_stage:
+            idle2 = Signal(init=1)  # ~v2
+            # idle2 | idle, a register of its own, so that `take_c` is one LUT of four
+            # (with five inputs the count's step was four LUTs deep)
+            idle23 = Signal(init=1)
+            free2_c = idle23 | self.r.ready  # = free2
+        else:
+            free2_c = free_o
+        move_c = ~idle1 & free2_c
+        take_c = ~empty & (idle1 | free2_c)
         m.d.comb += [
             ram.w_addr.eq(w_ptr), ram.w_data.eq(self.w_data), ram.w_en.eq(self.w_en),
             ram.r_addr.eq(r_ptr), ram.r_en.eq(take), ram.r_oce.eq(move),
-            self.r.payload.eq(ram.r_data),
         ]
         keep = self.w_keep
         with m.If(keep):
@@ -325,25 +345,43 @@ class _Store(wiring.Component):
             m.d.sync += [r_ptr.eq(r_ptr + 1), v1.eq(1)]
         with m.Elif(move):
             m.d.sync += v1.eq(0)
-        with m.If(move):
+        if self.fabric_stage:
+            # The fabric register loads at every clock `r` can take an entry (its word matters
+            # only while r.valid), so its enable is one LUT of `idle` and the port's ready.
+            with m.If(free_o):
+                m.d.sync += self.r.payload.eq(ram.r_data)
+            with m.If(move):
+                m.d.sync += v2.eq(1)
+            with m.Elif(free_r):
+                m.d.sync += v2.eq(0)  # its entry moves to `r`, if it holds one
+            to_r, idle_before_r = v2 & free_r, idle2
+            m.d.sync += [idle2.eq(idle1 & free2_c),  # = ~move_c & (idle2 | free_o)
+                         idle23.eq((idle1 & free2_c) | (idle2 & free_o))]
+        else:
+            m.d.comb += self.r.payload.eq(ram.r_data)
+            to_r, idle_before_r = move, idle1
+        with m.If(to_r):
             m.d.sync += self.r.valid.eq(1)
         with m.Elif(self.r.ready):
             m.d.sync += self.r.valid.eq(0)
-        # count >= 2 as the sign of count - 2: a carry chain from the register (a compare
-        # `count != 1` became a tree of LUTs, the gate's worst path at 188.5 MHz)
-        # As an OR of terms, the one with the chain's sign (`~empty & ge2`: an entry leaves
-        # and one more stays, or none leaves) beside the one with the port's `r.ready` (none
-        # leaves, from registers and that input alone), so that one LUT can follow the chain:
-        # as a choice by `take_c`, the chain -> two LUTs -> `ne` was the one-lane pipeline's
-        # worst path on seed 1 (6.28 ns, thirty-seventh session). Yosys may still fold it into
-        # two LUTs (it did: the same path, 6.70 ns, on a later seed); an exact cure would keep
-        # `count >= 2, 3, 4` registered from the last clock's count, with its last move.
+        # count >= 2 from the last clock's count, registered as min(count, 3) (its chain
+        # ends in the register), and its last move: count is that count plus `up` less
+        # `down`, so it is >= 2 if the last was >= 1 and one came in, >= 3 and one left, or
+        # >= 2 and neither: one LUT of four registers. No carry chain then sits in front of
+        # `ne`: as the sign of count - 2 (a chain from the count register, then two LUTs) it
+        # was the one-lane pipeline's worst path on seed 2, the packetizer FIFO's count -> ne,
+        # 6.70 ns (thirty-seventh session).
+        was = _reg(m, Mux(_le(3, count), 3, count[:2]), 2, "was_min3")
+        up = _reg(m, keep & ~take_c, 1, "was_up")
+        down = _reg(m, take_c & ~keep, 1, "was_down")
+        ge2 = Mux(up, was != 0, Mux(down, was == 3, was[1]))
         stays = Signal()  # ~take_c & ~empty: nothing moves to the first stage
-        m.d.comb += stays.eq(~empty & ~idle1 & ~free_o)
-        ne_nx = keep | (~empty & _le(2, count)) | stays
+        m.d.comb += stays.eq(~empty & ~idle1 & ~free2_c)
+        ne_nx = keep | ge2 | stays
         m.d.sync += [count.eq(_step(count, keep, take_c)), ne.eq(ne_nx), empty.eq(~ne_nx),
                      idle1.eq(~take_c & (idle1 | move_c)),
-                     idle.eq(idle1 & free_o)]  # = ~move_c & free_o
+                     # nothing moves to `r`, and it is empty or taken
+                     idle.eq(idle_before_r & free_o)]
         return m
 
 

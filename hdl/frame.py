@@ -172,8 +172,12 @@ class FramePacketizer(wiring.Component):
         # blocks in as few banks as the deepest block (16 384 x 1) allows: the 16-way bank mux
         # of the fewest blocks (2 048 x 9) was the pipeline's worst path in context, from the
         # bank select to the consumer (7.14 ns); two banks cost 18 blocks instead of 16.
+        # The bank mux's output goes into a register of the fabric (`fabric_stage`), not
+        # straight into the output slice's own mux (the blocks -> two LUTs -> the slice was
+        # one of the one-lane pipeline's worst paths, thirty-seventh session).
         banks = max(2, _Store.fewest_banks(self.capacity))
-        fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity, max_banks=banks)
+        fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity, max_banks=banks,
+                                          fabric_stage=True)
         # The payload buffer is read through the block RAM's two registers, advanced together
         # (`adv`), two words ahead of the one sent: a read straight out of the block was
         # 5.8 ns of the 5 ns clock before any logic. Nothing writes it while it is read.

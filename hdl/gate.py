@@ -29,11 +29,12 @@ from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 from ._primitives import _le, _reg, _step, _Store
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
-__all__ = ["DROP_BITS", "LATENCY", "Gate"]
+__all__ = ["DROP_BITS", "HEADER_LATENCY", "LATENCY", "Gate"]
 
-#: Clocks from an input sample to the same sample on ``o`` (FIFO empty, ``o.ready`` high); the
-#: header of a frame becomes valid this many clocks after its last sample entered.
-LATENCY = 5
+#: Clocks from an input sample to the same sample on ``o`` (FIFO empty, ``o.ready`` high).
+LATENCY = 6
+#: Clocks from a frame's last sample entering to its header being valid on ``header``.
+HEADER_LATENCY = 5
 #: Width of the saturating dropped-frame counter.
 DROP_BITS = 16
 
@@ -98,7 +99,8 @@ class Gate(wiring.Component):
     header : Out(stream.Signature(FRAME_HEADER_LAYOUT))
         One header per emitted frame, in frame order, every field of ``FRAME_HEADER``
         (``SURFACE``/``BOTTOM`` flags 0; the peak detector sets them later). It becomes valid
-        :data:`LATENCY` clocks after the frame's last sample entered, so it never waits for
+        :data:`HEADER_LATENCY` clocks after the frame's last sample entered (a clock before
+        that sample is on ``o`` when the FIFO is empty), so it never waits for
         the consumer to drain the frame's samples, and a consumer may take it before or after
         the samples.
     cfg : In(config_signature("gate"))
@@ -111,9 +113,10 @@ class Gate(wiring.Component):
 
     Notes
     -----
-    Latency: :data:`LATENCY` = 5 clocks from an input sample to it on ``o`` when the FIFO is
+    Latency: :data:`LATENCY` = 6 clocks from an input sample to it on ``o`` when the FIFO is
     empty and ``o.ready`` high (the sample register, the write register, the memory write,
-    and the two read registers of the block RAM); one sample per clock sustained.
+    the two read registers of the block RAM and a register after them); one sample per clock
+    sustained.
 
     The registers (``cfg``) and ``bank_id`` act from the clock after they are written: the
     gate reads them, and what it makes of them, from registers of its own, so that no path in
@@ -199,8 +202,13 @@ class Gate(wiring.Component):
         # banks' mux put a LUT fed from blocks apart on the read's path, 4.68 ns of routing
         # from one of them, the one-lane pipeline's worst path on seed 1 (6.50 ns, thirty-sixth
         # session); in one bank each bit's consumer can sit by its block.
+        # The blocks' words reach `o` through a register of the fabric (`fabric_stage`), which
+        # the placer can put by them: straight from the blocks' output registers to the
+        # pipeline's slice after the gate, one of eleven blocks was 5.2 ns of routing away,
+        # the one-lane pipeline's worst path on seed 3 (6.39 ns, thirty-seventh session).
         data = m.submodules.data = _Store(GATE_OUT.size, self.depth,
-                                          max_banks=_Store.fewest_banks(self.depth))
+                                          max_banks=_Store.fewest_banks(self.depth),
+                                          fabric_stage=True)
         hdrs = m.submodules.hdrs = _Store(_STORED.size, self.header_depth)
 
         # Time and event counters (section 3): `fine` ticks every `fine_div` samples after the

@@ -76,21 +76,24 @@ def test_bad_parameters(kwargs):
 # ---------------------------------------------------------------------------------------------
 # The store in Amaranth's simulator
 
-def run_store(depth, clocks, *, p_write=1.0, p_ready=1.0, p_keep=1.0, seed=0):
+def run_store(depth, clocks, *, p_write=1.0, p_ready=1.0, p_keep=1.0, seed=0,
+              write_until=None, ready_from=0, fabric_stage=False):
     """Drive a ``_Store(16, depth)`` as its writers do (a write only while fewer than ``depth``
-    entries are held, counting them until taken from ``r``); return the entries kept, those
-    taken, with the clocks of both."""
-    dut = _Store(16, depth)
+    entries are held, counting them until taken from ``r``, and none from clock
+    ``write_until`` on; ``r.ready`` low before clock ``ready_from``); return the entries
+    kept, those taken, with the clocks of both."""
+    dut = _Store(16, depth, fabric_stage=fabric_stage)
     rng = random.Random(seed)
     kept, taken = [], []
 
     async def bench(ctx):
         held = 0
         for clock in range(clocks):
-            write = held < depth and rng.random() < p_write
+            write = (held < depth and rng.random() < p_write
+                     and (write_until is None or clock < write_until))
             keep = write and rng.random() < p_keep
             data = rng.getrandbits(16)
-            ready = rng.random() < p_ready
+            ready = rng.random() < p_ready and clock >= ready_from
             ctx.set(dut.w_en, write)
             ctx.set(dut.w_keep, keep)
             ctx.set(dut.w_data, data)
@@ -114,31 +117,65 @@ TRAFFIC = {"plain": {}, "idle": {"p_write": 0.4, "p_keep": 0.8},
            "backpressure": {"p_ready": 0.3, "p_keep": 0.9}}
 
 
+#: The read stages after the memory: the block's latch and output register, and with
+#: ``fabric_stage`` a register in the fabric after them.
+STAGES = {False: 2, True: 3}
+
+
+@pytest.mark.parametrize("fabric_stage", [False, True], ids=["two_stages", "fabric_stage"])
 class TestStore:
     @pytest.mark.parametrize("traffic", list(TRAFFIC))
     @pytest.mark.parametrize("depth", [1, 2, 3, 4, 5, 7, 8, 9, 16])
-    def test_stream(self, depth, traffic):
-        kept, taken = run_store(depth, 400, seed=depth, **TRAFFIC[traffic])
+    def test_stream(self, depth, traffic, fabric_stage):
+        kept, taken = run_store(depth, 400, seed=depth, fabric_stage=fabric_stage,
+                                **TRAFFIC[traffic])
         assert [d for _, d in taken] == [d for _, d in kept][:len(taken)]
         assert len(kept) - len(taken) <= depth
         assert len(taken) > 40
 
-    def test_latency(self):
-        kept, taken = run_store(8, 6, p_write=0.0)
+    @pytest.mark.parametrize("traffic", list(TRAFFIC))
+    @pytest.mark.parametrize("depth", [1, 2, 3, 4, 5, 8])
+    def test_drains(self, depth, traffic, fabric_stage):
+        """Once writes stop, every entry kept comes out: an entry stranded in the memory with
+        ``ne`` low (the stream test's later writes would free it) fails here."""
+        kept, taken = run_store(depth, 600, seed=depth, write_until=300,
+                                fabric_stage=fabric_stage, **TRAFFIC[traffic])
+        assert [d for _, d in taken] == [d for _, d in kept]
+        assert len(kept) > 40
+
+    @pytest.mark.parametrize("depth", [1, 2, 3, 4, 5, 8])
+    def test_drains_after_a_stall(self, depth, fabric_stage):
+        """Writes into a stalled reader, then none: every entry kept comes out, at every
+        boundary of the two (the count's last step up, then down with no write after it,
+        is a case random traffic almost never makes)."""
+        for writes in range(1, depth + 2):
+            for stall in range(depth + 4):
+                kept, taken = run_store(depth, writes + stall + 3 * depth + 8,
+                                        write_until=writes, ready_from=stall,
+                                        fabric_stage=fabric_stage)
+                assert [d for _, d in taken] == [d for _, d in kept], (writes, stall)
+
+    def test_latency(self, fabric_stage):
+        kept, taken = run_store(8, 6, p_write=0.0, fabric_stage=fabric_stage)
         assert taken == []
-        kept, taken = run_store(8, 30, seed=3)
-        assert [t - k for (k, _), (t, _) in zip(kept, taken, strict=False)][:5] == [3] * 5
+        kept, taken = run_store(8, 30, seed=3, fabric_stage=fabric_stage)
+        latency = 1 + STAGES[fabric_stage]
+        assert [t - k for (k, _), (t, _) in zip(kept, taken, strict=False)][:5] == [latency] * 5
 
-    @pytest.mark.parametrize("depth", [4, 5, 64])
-    def test_one_per_clock(self, depth):
-        """From depth 4 (write, the memory, two read stages) an entry per clock sustained."""
-        _, taken = run_store(depth, 200)
+    @pytest.mark.parametrize("spare", [0, 1, 60])
+    def test_one_per_clock(self, spare, fabric_stage):
+        """From a depth of 2 + the read stages (the write, the memory, the read stages) an
+        entry per clock sustained."""
+        stages = STAGES[fabric_stage]
+        _, taken = run_store(2 + stages + spare, 200, fabric_stage=fabric_stage)
         clocks = [t for t, _ in taken]
-        assert clocks == list(range(3, 3 + len(clocks))) and len(clocks) > 190
+        assert clocks == list(range(1 + stages, 1 + stages + len(clocks)))
+        assert len(clocks) > 190
 
-    def test_three_entries_slower(self):
-        """Depth 3 cannot keep one per clock (an entry is held 4 clocks): the writer waits."""
-        _, taken = run_store(3, 200)
+    def test_one_fewer_is_slower(self, fabric_stage):
+        """A depth of 1 + the read stages cannot keep one per clock (an entry is held 2 +
+        stages clocks): the writer waits."""
+        _, taken = run_store(1 + STAGES[fabric_stage], 200, fabric_stage=fabric_stage)
         assert 100 < len(taken) < 190
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from hdl.gate import LATENCY, Gate
+from hdl.gate import HEADER_LATENCY, LATENCY, Gate
 from hdl.layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT
 from hdl.tb.amsim import simulate
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
@@ -240,7 +240,7 @@ class TestAmaranthSim:
         check(res, sc)
         taken_in = res.sources["i"]["clock"][3:23]
         assert np.all(res.sinks["o"]["clock"] - taken_in == LATENCY)
-        assert res.sinks["header"]["clock"][0] == taken_in[-1] + LATENCY
+        assert res.sinks["header"]["clock"][0] == taken_in[-1] + HEADER_LATENCY
 
     def test_counter_limits_fine_div_1(self):
         start = {"fine_start": FINE_MAX - 3, "coarse_start": (1 << COARSE_BITS) - 1,
