@@ -89,7 +89,8 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     windows : Windows
         The window bounds per lane.
     window_shift : callable
-        ``value >> noise_log2`` (an AND-OR of shifted copies).
+        ``value >> noise_log2`` (an AND-OR of shifted copies); ``second=True`` for the
+        noise's, from a set of flags of its own.
     q_pop, stats_ok : Signal or None
         With the lookahead: D1's frame leaves (its last beat's ``go``: the next entry goes to
         ``cur``), and the flag driven here: ``cur`` holds D1's next beat's frame.
@@ -189,7 +190,8 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     # subtractions where it is a register.
     assert NOISE_MAX == (1 << OUT_WIDTH) - 1 == (1 << NOISE_WIDTH) - 1
     noise = Signal(NOISE_WIDTH)
-    noise_full = _reg(m, window_shift(dev_sum), unsigned(NOISE_WIDTH), "noise_full")
+    noise_full = _reg(m, window_shift(dev_sum, second=True), unsigned(NOISE_WIDTH),
+                      "noise_full")
     full_new = _reg(m, dev_closed, 1, "noise_full_new")
     with m.If(full_new):
         m.d.sync += noise.eq(noise_full)
