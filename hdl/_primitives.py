@@ -254,6 +254,9 @@ class _Store(wiring.Component):
         A third read stage, a register in the fabric after the block's output register
         (``r.payload``): the word then reaches the consumer in two hops, the first to a
         register the placer can put by the blocks (default False).
+    split_enables : bool, optional
+        The block RAM's read enables in two copies, each made by logic of its own and driving
+        half of the blocks (:class:`hdl._bram.BlockRAM`; default False).
 
     Attributes
     ----------
@@ -276,9 +279,9 @@ class _Store(wiring.Component):
     """
 
     def __init__(self, width: int, depth: int, max_banks: int | None = None,
-                 fabric_stage: bool = False):
+                 fabric_stage: bool = False, split_enables: bool = False):
         self.width, self.depth, self.max_banks = width, depth, max_banks
-        self.fabric_stage = fabric_stage
+        self.fabric_stage, self.split_enables = fabric_stage, split_enables
         super().__init__({"w_data": In(width), "w_en": In(1), "w_keep": In(1),
                           "r": Out(stream.Signature(width))})
 
@@ -303,7 +306,8 @@ class _Store(wiring.Component):
         # an entry as held until it leaves `r`. So a write never lands on the slot of an entry
         # in the first stage, and never on the slot read at that clock (that would take `size`
         # slots in use and one more coming): the read port need not see the write port.
-        ram = m.submodules.ram = BlockRAM(self.width, size, self.max_banks)
+        ram = m.submodules.ram = BlockRAM(self.width, size, self.max_banks,
+                                          split_enables=self.split_enables)
         w_ptr = Signal(range(size))
         r_ptr = Signal(range(size))
         # (the entries in the memory, read stages not, are counted a clock late: `count1`)
@@ -334,9 +338,16 @@ class _Store(wiring.Component):
             free2_c = free_o
         move_c = ~idle1 & free2_c
         take_c = ~empty & (idle1 | free2_c)
+        # The blocks' read enables ask less than `take` and `move`: the first stage reads at
+        # every clock it is empty or moves on (an empty memory gives it a word it does not
+        # keep), and the output register loads at every clock the next stage can take a word
+        # (with none in the first stage, one it does not keep). Each is then one LUT of the
+        # flags and the port's ready; its copy (`split_enables`) is the same function of the
+        # inverted flags, so that the two nets, each to half the blocks, stay apart.
         m.d.comb += [
             ram.w_addr.eq(w_ptr), ram.w_data.eq(self.w_data), ram.w_en.eq(self.w_en),
-            ram.r_addr.eq(r_ptr), ram.r_en.eq(take), ram.r_oce.eq(move),
+            ram.r_addr.eq(r_ptr), ram.r_en.eq(~v1 | free2), ram.r_oce.eq(free2),
+            ram.r_en2.eq(idle1 | free2_c), ram.r_oce2.eq(free2_c),
         ]
         keep = self.w_keep
         with m.If(keep):

@@ -206,9 +206,10 @@ class Gate(wiring.Component):
         # the placer can put by them: straight from the blocks' output registers to the
         # pipeline's slice after the gate, one of eleven blocks was 5.2 ns of routing away,
         # the one-lane pipeline's worst path on seed 3 (6.39 ns, thirty-seventh session).
+        # Its read enables in two copies, each to half the blocks (`split_enables`).
         data = m.submodules.data = _Store(GATE_OUT.size, self.depth,
                                           max_banks=_Store.fewest_banks(self.depth),
-                                          fabric_stage=True)
+                                          fabric_stage=True, split_enables=True)
         hdrs = m.submodules.hdrs = _Store(_STORED.size, self.header_depth)
 
         # Time and event counters (section 3): `fine` ticks every `fine_div` samples after the

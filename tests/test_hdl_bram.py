@@ -77,12 +77,13 @@ def test_bad_parameters(kwargs):
 # The store in Amaranth's simulator
 
 def run_store(depth, clocks, *, p_write=1.0, p_ready=1.0, p_keep=1.0, seed=0,
-              write_until=None, ready_from=0, fabric_stage=False):
-    """Drive a ``_Store(16, depth)`` as its writers do (a write only while fewer than ``depth``
+              write_until=None, ready_from=0, fabric_stage=False, split_enables=False):
+    """Drive a ``_Store(24, depth)`` as its writers do (a write only while fewer than ``depth``
     entries are held, counting them until taken from ``r``, and none from clock
     ``write_until`` on; ``r.ready`` low before clock ``ready_from``); return the entries
     kept, those taken, with the clocks of both."""
-    dut = _Store(16, depth, fabric_stage=fabric_stage)
+    # (24 bits: two columns of blocks, so that the enables' copies read half of them)
+    dut = _Store(24, depth, fabric_stage=fabric_stage, split_enables=split_enables)
     rng = random.Random(seed)
     kept, taken = [], []
 
@@ -92,7 +93,7 @@ def run_store(depth, clocks, *, p_write=1.0, p_ready=1.0, p_keep=1.0, seed=0,
             write = (held < depth and rng.random() < p_write
                      and (write_until is None or clock < write_until))
             keep = write and rng.random() < p_keep
-            data = rng.getrandbits(16)
+            data = rng.getrandbits(24)
             ready = rng.random() < p_ready and clock >= ready_from
             ctx.set(dut.w_en, write)
             ctx.set(dut.w_keep, keep)
@@ -117,17 +118,26 @@ TRAFFIC = {"plain": {}, "idle": {"p_write": 0.4, "p_keep": 0.8},
            "backpressure": {"p_ready": 0.3, "p_keep": 0.9}}
 
 
-#: The read stages after the memory: the block's latch and output register, and with
-#: ``fabric_stage`` a register in the fabric after them.
-STAGES = {False: 2, True: 3}
+#: The store's variants: with a read stage in the fabric after the block's two
+#: (``fabric_stage``), and with the block RAM's read enables in two copies, each reading half
+#: the columns (``split_enables``).
+VARIANTS = {"two_stages": {}, "fabric_stage": {"fabric_stage": True},
+            "split": {"split_enables": True},
+            "fabric_split": {"fabric_stage": True, "split_enables": True}}
 
 
-@pytest.mark.parametrize("fabric_stage", [False, True], ids=["two_stages", "fabric_stage"])
+def stages(variant):
+    """The read stages after the memory: the block's latch and output register, and with
+    ``fabric_stage`` a register in the fabric after them."""
+    return 3 if VARIANTS[variant].get("fabric_stage") else 2
+
+
+@pytest.mark.parametrize("variant", list(VARIANTS))
 class TestStore:
     @pytest.mark.parametrize("traffic", list(TRAFFIC))
     @pytest.mark.parametrize("depth", [1, 2, 3, 4, 5, 7, 8, 9, 16])
-    def test_stream(self, depth, traffic, fabric_stage):
-        kept, taken = run_store(depth, 400, seed=depth, fabric_stage=fabric_stage,
+    def test_stream(self, depth, traffic, variant):
+        kept, taken = run_store(depth, 400, seed=depth, **VARIANTS[variant],
                                 **TRAFFIC[traffic])
         assert [d for _, d in taken] == [d for _, d in kept][:len(taken)]
         assert len(kept) - len(taken) <= depth
@@ -135,16 +145,16 @@ class TestStore:
 
     @pytest.mark.parametrize("traffic", list(TRAFFIC))
     @pytest.mark.parametrize("depth", [1, 2, 3, 4, 5, 8])
-    def test_drains(self, depth, traffic, fabric_stage):
+    def test_drains(self, depth, traffic, variant):
         """Once writes stop, every entry kept comes out: an entry stranded in the memory with
         ``ne`` low (the stream test's later writes would free it) fails here."""
-        kept, taken = run_store(depth, 600, seed=depth, write_until=300,
-                                fabric_stage=fabric_stage, **TRAFFIC[traffic])
+        kept, taken = run_store(depth, 600, seed=depth, write_until=300, **VARIANTS[variant],
+                                **TRAFFIC[traffic])
         assert [d for _, d in taken] == [d for _, d in kept]
         assert len(kept) > 40
 
     @pytest.mark.parametrize("depth", [1, 2, 3, 4, 5, 8])
-    def test_drains_after_a_stall(self, depth, fabric_stage):
+    def test_drains_after_a_stall(self, depth, variant):
         """Writes into a stalled reader, then none: every entry kept comes out, at every
         boundary of the two (the count's last step up, then down with no write after it,
         is a case random traffic almost never makes)."""
@@ -152,30 +162,30 @@ class TestStore:
             for stall in range(depth + 4):
                 kept, taken = run_store(depth, writes + stall + 3 * depth + 8,
                                         write_until=writes, ready_from=stall,
-                                        fabric_stage=fabric_stage)
+                                        **VARIANTS[variant])
                 assert [d for _, d in taken] == [d for _, d in kept], (writes, stall)
 
-    def test_latency(self, fabric_stage):
-        kept, taken = run_store(8, 6, p_write=0.0, fabric_stage=fabric_stage)
+    def test_latency(self, variant):
+        kept, taken = run_store(8, 6, p_write=0.0, **VARIANTS[variant])
         assert taken == []
-        kept, taken = run_store(8, 30, seed=3, fabric_stage=fabric_stage)
-        latency = 1 + STAGES[fabric_stage]
+        kept, taken = run_store(8, 30, seed=3, **VARIANTS[variant])
+        latency = 1 + stages(variant)
         assert [t - k for (k, _), (t, _) in zip(kept, taken, strict=False)][:5] == [latency] * 5
 
     @pytest.mark.parametrize("spare", [0, 1, 60])
-    def test_one_per_clock(self, spare, fabric_stage):
+    def test_one_per_clock(self, spare, variant):
         """From a depth of 2 + the read stages (the write, the memory, the read stages) an
         entry per clock sustained."""
-        stages = STAGES[fabric_stage]
-        _, taken = run_store(2 + stages + spare, 200, fabric_stage=fabric_stage)
+        n = stages(variant)
+        _, taken = run_store(2 + n + spare, 200, **VARIANTS[variant])
         clocks = [t for t, _ in taken]
-        assert clocks == list(range(1 + stages, 1 + stages + len(clocks)))
+        assert clocks == list(range(1 + n, 1 + n + len(clocks)))
         assert len(clocks) > 190
 
-    def test_one_fewer_is_slower(self, fabric_stage):
+    def test_one_fewer_is_slower(self, variant):
         """A depth of 1 + the read stages cannot keep one per clock (an entry is held 2 +
         stages clocks): the writer waits."""
-        _, taken = run_store(1 + STAGES[fabric_stage], 200, fabric_stage=fabric_stage)
+        _, taken = run_store(1 + stages(variant), 200, **VARIANTS[variant])
         assert 100 < len(taken) < 190
 
 
@@ -257,22 +267,24 @@ class _AsEcp5(Elaboratable):
 class BramTwin(wiring.Component):
     """Two block RAMs of one shape on the same inputs: ``hw`` elaborated for the ECP5."""
 
-    def __init__(self, width, depth, max_banks=None):
+    def __init__(self, width, depth, max_banks=None, split_enables=False):
         self.width, self.depth, self.max_banks = width, depth, max_banks
+        self.split_enables = split_enables
         super().__init__({"w_addr": In(range(depth)), "w_data": In(width), "w_en": In(1),
                           "r_addr": In(range(depth)), "r_en": In(1), "r_oce": In(1),
                           "hw_data": Out(width), "plain_data": Out(width)})
 
     def elaborate(self, platform):
         m = Module()
-        hw = BlockRAM(self.width, self.depth, self.max_banks)
-        plain = BlockRAM(self.width, self.depth, self.max_banks)
+        hw = BlockRAM(self.width, self.depth, self.max_banks, self.split_enables)
+        plain = BlockRAM(self.width, self.depth, self.max_banks, self.split_enables)
         m.submodules.hw = _AsEcp5(hw)
         m.submodules.plain = plain
         for ram in (hw, plain):
             m.d.comb += [ram.w_addr.eq(self.w_addr), ram.w_data.eq(self.w_data),
                          ram.w_en.eq(self.w_en), ram.r_addr.eq(self.r_addr),
-                         ram.r_en.eq(self.r_en), ram.r_oce.eq(self.r_oce)]
+                         ram.r_en.eq(self.r_en), ram.r_oce.eq(self.r_oce),
+                         ram.r_en2.eq(self.r_en), ram.r_oce2.eq(self.r_oce)]
         m.d.comb += [self.hw_data.eq(hw.r_data), self.plain_data.eq(plain.r_data)]
         return m
 
@@ -282,15 +294,17 @@ class _TwinDesign(Design):
         return to_verilog(self.component(**dict(self.params)), self.name) + DP16KD_MODEL
 
 
-@pytest.mark.parametrize("width, depth, max_banks", [
-    (42, 4096, None), (9, 32768, None), (9, 32768, 2), (24, 4096, None), (24, 768, None),
-    (2, 20000, None)])
-def test_ecp5_against_plain(tmp_path, width, depth, max_banks):
+@pytest.mark.parametrize("width, depth, max_banks, split", [
+    (42, 4096, None, False), (9, 32768, None, False), (9, 32768, 2, False),
+    (24, 4096, None, False), (24, 768, None, False), (2, 20000, None, False),
+    (42, 4096, None, True), (9, 32768, 2, True)])
+def test_ecp5_against_plain(tmp_path, width, depth, max_banks, split):
     from cocotb_tools.check_results import get_results
     from cocotb_tools.runner import get_runner
 
     design = _TwinDesign(BramTwin, width=width, depth=depth,
-                         **({"max_banks": max_banks} if max_banks else {}))
+                         **({"max_banks": max_banks} if max_banks else {}),
+                         **({"split_enables": True} if split else {}))
     build_dir = build(design)
     if str(BENCH_DIR) not in sys.path:
         sys.path.insert(0, str(BENCH_DIR))  # the runner hands sys.path to the simulator
