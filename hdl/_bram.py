@@ -76,9 +76,6 @@ class BlockRAM(Elaboratable):
     max_banks : int, optional
         At most this many banks of blocks on the ECP5 (:func:`_tiling`; default: whatever
         takes the fewest blocks).
-    split_enables : bool, optional
-        Two copies of the read enables (``r_en2``, ``r_oce2``), each driving half of the
-        blocks (default False).
 
     Attributes
     ----------
@@ -98,13 +95,6 @@ class BlockRAM(Elaboratable):
         (the ``DP16KD``'s ``OCEB``).
     r_data : Signal(width), out
         The output register.
-    r_en2, r_oce2 : Signal(1), in
-        With ``split_enables``: copies of ``r_en`` and ``r_oce``, which the caller makes equal
-        to them from logic of their own, so that each enable's net reaches half the blocks
-        (a net from one LUT to eleven or eighteen blocks spread along the rows was 2.8-4.1
-        ns of routing, thirty-eighth session). They enable the bits from :attr:`split_at` on
-        (the blocks' upper columns; in the plain version too, a memory of their own, so that
-        a copy that differs shows in the data).
 
     Notes
     -----
@@ -117,20 +107,13 @@ class BlockRAM(Elaboratable):
     hold it). Registers are not reset.
     """
 
-    def __init__(self, width: int, depth: int, max_banks: int | None = None,
-                 split_enables: bool = False):
+    def __init__(self, width: int, depth: int, max_banks: int | None = None):
         checked = (("width", width), ("depth", depth), ("max_banks", max_banks))
         for name, v in checked[:2] if max_banks is None else checked:
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, not {v!r}")
-        bw, _, cols, _ = _tiling(width, depth, max_banks)  # (a shape it cannot tile fails here)
+        _tiling(width, depth, max_banks)  # a shape it cannot tile fails here, not later
         self.width, self.depth, self.max_banks = width, depth, max_banks
-        self.split_enables = bool(split_enables)
-        #: The first bit the copies of the enables drive (``width`` without
-        #: ``split_enables`` or with a single column of blocks: no bit).
-        self.split_at = min(width, -(-cols // 2) * bw) if split_enables else width
-        self.r_en2 = Signal()
-        self.r_oce2 = Signal()
         self.w_addr = Signal(range(depth))
         self.w_data = Signal(width)
         self.w_en = Signal()
@@ -145,20 +128,15 @@ class BlockRAM(Elaboratable):
         m = Module()
         # Non-transparent: a read of the address written at the same clock gets the old word,
         # one of the values the block may give (undefined there); callers avoid the case.
-        # The bits from split_at on are a memory of their own, read with the enables' copies.
-        parts = [(0, self.split_at, self.r_en, self.r_oce),
-                 (self.split_at, self.width, self.r_en2, self.r_oce2)]
-        for n, (lo, hi, r_en, r_oce) in enumerate(p for p in parts if p[1] > p[0]):
-            mem = m.submodules[f"mem{n}" if n else "mem"] = memory.Memory(
-                shape=hi - lo, depth=self.depth, init=[], attrs={"no_rw_check": 1})
-            wp = mem.write_port()
-            rp = mem.read_port()
-            out = Signal(hi - lo, reset_less=True, name=f"out{n}" if n else "out")
-            m.d.comb += [wp.addr.eq(self.w_addr), wp.data.eq(self.w_data[lo:hi]),
-                         wp.en.eq(self.w_en), rp.addr.eq(self.r_addr), rp.en.eq(r_en),
-                         self.r_data[lo:hi].eq(out)]
-            with m.If(r_oce):
-                m.d.sync += out.eq(rp.data)
+        mem = m.submodules.mem = memory.Memory(shape=self.width, depth=self.depth, init=[],
+                                               attrs={"no_rw_check": 1})
+        wp = mem.write_port()
+        rp = mem.read_port()
+        out = Signal(self.width, reset_less=True)
+        m.d.comb += [wp.addr.eq(self.w_addr), wp.data.eq(self.w_data), wp.en.eq(self.w_en),
+                     rp.addr.eq(self.r_addr), rp.en.eq(self.r_en), self.r_data.eq(out)]
+        with m.If(self.r_oce):
+            m.d.sync += out.eq(rp.data)
         return m
 
     def _ecp5(self):
@@ -183,12 +161,9 @@ class BlockRAM(Elaboratable):
             out = Signal(cols * bw, name=f"bank{b}")
             we = self.w_en if banks == 1 else self.w_en & (w_bank == b)
             for c in range(cols):
-                upper = c * bw >= self.split_at  # the copies' half
                 ports = {"i_CLKA": ClockSignal(), "i_CEA": 1, "i_OCEA": 1, "i_WEA": we,
-                         "i_RSTA": 0, "i_CLKB": ClockSignal(),
-                         "i_CEB": self.r_en2 if upper else self.r_en,
-                         "i_OCEB": self.r_oce2 if upper else self.r_oce,
-                         "i_WEB": 0, "i_RSTB": 0}
+                         "i_RSTA": 0, "i_CLKB": ClockSignal(), "i_CEB": self.r_en,
+                         "i_OCEB": self.r_oce, "i_WEB": 0, "i_RSTB": 0}
                 wa = Signal(14, name=f"wa{b}_{c}")
                 ra = Signal(14, name=f"ra{b}_{c}")
                 m.d.comb += [wa.eq(self.w_addr[:lo] << shift), ra.eq(self.r_addr[:lo] << shift)]

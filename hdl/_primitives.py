@@ -25,6 +25,12 @@ __all__ = ["RAM_DELAY_MIN", "OneHotFSM", "RegisterSlice", "_Store", "_delay", "_
            "register_slice"]
 
 
+#: Entries of the output buffer of a :class:`_Store` read free (``free_read``), counting those
+#: in flight to it: the three stages from the memory and one, the fewest that sustain one
+#: entry per clock (three do not: ``tests/test_hdl_bram.py``).
+READ_BUFFER = 4
+
+
 def _le(a, b):
     """``a <= b`` as the sign of ``b - a``: one carry chain, which synthesis keeps as such
     (a compare it may turn into a tree of LUTs)."""
@@ -234,29 +240,34 @@ class _Store(wiring.Component):
     the keeping of what was written are separate inputs, so that the memory's write enable
     need not wait for the writer's last decision: an entry written but not kept is
     overwritten by the next write. The oldest entry is read through the two stages of a
-    :class:`hdl._bram.BlockRAM` (the block's address register, then its output register,
-    which is ``r.payload``): a block RAM read straight into logic is more than a 5 ns clock on
-    the ECP5. Whether the memory holds anything is a register (``ne``, beside the entry
-    count), not a compare of pointers or of a level, and so is whether the first stage holds
-    an entry, so that each stage's decision is one LUT from registers.
+    :class:`hdl._bram.BlockRAM` (the block's address register, then its output register): a
+    block RAM read straight into logic is more than a 5 ns clock on the ECP5. Whether the
+    memory holds anything is a register (``ne``), not a compare of pointers or of a level.
+
+    Two ways to read. Held (the default): the block's output register is ``r.payload``, each
+    stage holds its entry while the next cannot take it, and each stage's move is one LUT
+    from registers and ``r.ready``. Free (``free_read``): the block reads at every clock (its
+    enables are constants), its two stages and a register of the fabric after them run free,
+    and an output buffer of :data:`READ_BUFFER` entries in LUT RAM
+    (:func:`_output_buffer`) takes what comes out; an entry leaves the memory only while the
+    buffer has room for it and those in flight, a register (``room``) counted from the
+    leaves on ``r``. Then ``r.ready`` reaches no block: with the stages held, the blocks'
+    enables were a LUT of it, and that LUT's route to blocks along the rows far from the
+    consumer was 2.3-2.8 ns, the one-lane pipeline's worst path on every seed of the
+    thirty-eighth session's runs that had the packetizer's FIFO held (6.7-7.3 ns).
 
     Parameters
     ----------
     width : int
         Bits per entry.
     depth : int, >= 1
-        Entries it can hold, both read stages included; the memory is ``depth`` rounded up to
-        a power of two (at least 2).
+        Entries it can hold, those read and not yet taken from ``r`` included; the memory is
+        ``depth`` rounded up to a power of two (at least 2).
     max_banks : int, optional
         For the block RAM (:class:`hdl._bram.BlockRAM`): at most this many banks of blocks,
-        so at most a ``max_banks``-way mux between the blocks and ``r.payload``.
-    fabric_stage : bool, optional
-        A third read stage, a register in the fabric after the block's output register
-        (``r.payload``): the word then reaches the consumer in two hops, the first to a
-        register the placer can put by the blocks (default False).
-    split_enables : bool, optional
-        The block RAM's read enables in two copies, each made by logic of its own and driving
-        half of the blocks (:class:`hdl._bram.BlockRAM`; default False).
+        so at most a ``max_banks``-way mux between the blocks and their consumer.
+    free_read : bool, optional
+        Read as above (default False).
 
     Attributes
     ----------
@@ -264,8 +275,8 @@ class _Store(wiring.Component):
         The entry to write.
     w_en : In(1)
         Write ``w_data`` to the memory at this clock; the writer guarantees that fewer than
-        ``depth`` entries are held (kept) then, counting those in the two read stages until
-        they are taken from ``r``.
+        ``depth`` entries are held (kept) then, counting those read until they are taken
+        from ``r``.
     w_keep : In(1)
         Keep the entry written at this clock (only with ``w_en``).
     r : Out(stream.Signature(width))
@@ -274,14 +285,14 @@ class _Store(wiring.Component):
     Notes
     -----
     Latency: an entry written at clock t is valid on ``r`` at clock t + 3 (t + 4 with
-    ``fabric_stage``); one entry per clock sustained while ``r.ready`` stays high, from a
-    depth of 4 (5 with ``fabric_stage``).
+    ``free_read``); one entry per clock sustained while ``r.ready`` stays high, from a depth
+    of 4 (5 with ``free_read``).
     """
 
     def __init__(self, width: int, depth: int, max_banks: int | None = None,
-                 fabric_stage: bool = False, split_enables: bool = False):
+                 free_read: bool = False):
         self.width, self.depth, self.max_banks = width, depth, max_banks
-        self.fabric_stage, self.split_enables = fabric_stage, split_enables
+        self.free_read = free_read
         super().__init__({"w_data": In(width), "w_en": In(1), "w_keep": In(1),
                           "r": Out(stream.Signature(width))})
 
@@ -304,77 +315,28 @@ class _Store(wiring.Component):
         # read stage (its word is in the block's latch, which is not specified to survive a
         # rewrite of its address): at most `depth` <= `size` of them, because the writer counts
         # an entry as held until it leaves `r`. So a write never lands on the slot of an entry
-        # in the first stage, and never on the slot read at that clock (that would take `size`
-        # slots in use and one more coming): the read port need not see the write port.
-        ram = m.submodules.ram = BlockRAM(self.width, size, self.max_banks,
-                                          split_enables=self.split_enables)
+        # in the first stage, and never on the slot read at that clock while the memory holds
+        # an entry (that would take `size` slots in use and one more coming): the read port
+        # need not see the write port. (A read of an empty memory's slot being written gives
+        # the first stage a word no entry stands behind, which it does not keep.)
+        ram = m.submodules.ram = BlockRAM(self.width, size, self.max_banks)
         w_ptr = Signal(range(size))
         r_ptr = Signal(range(size))
-        # (the entries in the memory, read stages not, are counted a clock late: `count1`)
         ne = Signal()  # the memory holds an entry
-        v1 = Signal()  # the first read stage holds an entry
-        free_r = ~self.r.valid | self.r.ready  # `r` can take an entry at this clock
-        if self.fabric_stage:
-            v2 = Signal()  # the block's output register holds an entry
-            free2 = ~v2 | free_r  # ... and it can take one
-        else:
-            free2 = free_r
-        move = v1 & free2  # first stage -> the next
-        take = ne & (~v1 | free2)  # oldest entry -> first stage
-        # The same decisions again, from copies of the flags kept inverted (so that synthesis
-        # does not merge them with the originals), for the count and the flags: `take` and
-        # `move` go to every block of the memory, and the count need not follow them there.
-        empty = Signal(init=1)  # ~ne
-        idle1 = Signal(init=1)  # ~v1
-        idle = Signal(init=1)  # ~r.valid
-        free_o = idle | self.r.ready  # = free_r
-        if self.fabric_stage:
-            idle2 = Signal(init=1)  # ~v2
-            # idle2 | idle, a register of its own, so that `take_c` is one LUT of four
-            # (with five inputs the count's step was four LUTs deep)
-            idle23 = Signal(init=1)
-            free2_c = idle23 | self.r.ready  # = free2
-        else:
-            free2_c = free_o
-        move_c = ~idle1 & free2_c
-        take_c = ~empty & (idle1 | free2_c)
-        # The blocks' read enables ask less than `take` and `move`: the first stage reads at
-        # every clock it is empty or moves on (an empty memory gives it a word it does not
-        # keep), and the output register loads at every clock the next stage can take a word
-        # (with none in the first stage, one it does not keep). Each is then one LUT of the
-        # flags and the port's ready; its copy (`split_enables`) is the same function of the
-        # inverted flags, so that the two nets, each to half the blocks, stay apart.
-        m.d.comb += [
-            ram.w_addr.eq(w_ptr), ram.w_data.eq(self.w_data), ram.w_en.eq(self.w_en),
-            ram.r_addr.eq(r_ptr), ram.r_en.eq(~v1 | free2), ram.r_oce.eq(free2),
-            ram.r_en2.eq(idle1 | free2_c), ram.r_oce2.eq(free2_c),
-        ]
+        # `ne` again, inverted (so that synthesis does not merge the two), for the count and
+        # the flags: `take` goes to the read pointer and the count need not follow it there.
+        empty = Signal(init=1)
         keep = self.w_keep
+        m.d.comb += [ram.w_addr.eq(w_ptr), ram.w_data.eq(self.w_data), ram.w_en.eq(self.w_en),
+                     ram.r_addr.eq(r_ptr)]
         with m.If(keep):
             m.d.sync += w_ptr.eq(w_ptr + 1)  # modulo the power-of-two size
+        read = self._read_free if self.free_read else self._read_held
+        # take: the oldest entry leaves the memory; take_c: the same from `empty`; stays: an
+        # entry is in the memory and none leaves
+        take, take_c, stays = read(m, ram, ne, empty)
         with m.If(take):
-            m.d.sync += [r_ptr.eq(r_ptr + 1), v1.eq(1)]
-        with m.Elif(move):
-            m.d.sync += v1.eq(0)
-        if self.fabric_stage:
-            # The fabric register loads at every clock `r` can take an entry (its word matters
-            # only while r.valid), so its enable is one LUT of `idle` and the port's ready.
-            with m.If(free_o):
-                m.d.sync += self.r.payload.eq(ram.r_data)
-            with m.If(move):
-                m.d.sync += v2.eq(1)
-            with m.Elif(free_r):
-                m.d.sync += v2.eq(0)  # its entry moves to `r`, if it holds one
-            to_r, idle_before_r = v2 & free_r, idle2
-            m.d.sync += [idle2.eq(idle1 & free2_c),  # = ~move_c & (idle2 | free_o)
-                         idle23.eq((idle1 & free2_c) | (idle2 & free_o))]
-        else:
-            m.d.comb += self.r.payload.eq(ram.r_data)
-            to_r, idle_before_r = move, idle1
-        with m.If(to_r):
-            m.d.sync += self.r.valid.eq(1)
-        with m.Elif(self.r.ready):
-            m.d.sync += self.r.valid.eq(0)
+            m.d.sync += r_ptr.eq(r_ptr + 1)
         # The entries in the memory are counted a clock late: `count1` is the last clock's
         # count, stepped by that clock's moves `up` and `down` (registers), so that no late
         # input (the writer's keep, the port's ready) reaches the count's enables: as a step
@@ -398,14 +360,59 @@ class _Store(wiring.Component):
                           Mux(down, min3(_le(4, count1), (count1 - 1)[:2]),
                               min3(_le(3, count1), count1[:2]))), 2, "was_min3")
         ge2 = Mux(up, was != 0, Mux(down, was == 3, was[1]))
-        stays = Signal()  # ~take_c & ~empty: nothing moves to the first stage
-        m.d.comb += stays.eq(~empty & ~idle1 & ~free2_c)
         ne_nx = keep | ge2 | stays
-        m.d.sync += [ne.eq(ne_nx), empty.eq(~ne_nx),
-                     idle1.eq(~take_c & (idle1 | move_c)),
-                     # nothing moves to `r`, and it is empty or taken
-                     idle.eq(idle_before_r & free_o)]
+        m.d.sync += [ne.eq(ne_nx), empty.eq(~ne_nx)]
         return m
+
+    def _read_held(self, m, ram, ne, empty):
+        """The held read: the block's output register is ``r.payload``."""
+        v1 = Signal()  # the first read stage holds an entry
+        free_r = ~self.r.valid | self.r.ready  # `r` can take an entry at this clock
+        move = v1 & free_r  # first stage -> `r`
+        take = ne & (~v1 | free_r)  # oldest entry -> first stage
+        # The same decisions again, from copies of the flags kept inverted (so that synthesis
+        # does not merge them with the originals), for the count and the flags: `take` and
+        # `move` go to every block of the memory, and the count need not follow them there.
+        idle1 = Signal(init=1)  # ~v1
+        idle = Signal(init=1)  # ~r.valid
+        free_o = idle | self.r.ready  # = free_r
+        move_c = ~idle1 & free_o
+        take_c = ~empty & (idle1 | free_o)
+        # The blocks' read enables ask less than `take` and `move`: the first stage reads at
+        # every clock it is empty or moves on (an empty memory gives it a word it does not
+        # keep), and the output register loads at every clock `r` can take a word (with none
+        # in the first stage, one it does not keep): each one LUT of two flags and the ready.
+        m.d.comb += [ram.r_en.eq(~v1 | free_r), ram.r_oce.eq(free_r),
+                     self.r.payload.eq(ram.r_data)]
+        with m.If(take):
+            m.d.sync += v1.eq(1)
+        with m.Elif(move):
+            m.d.sync += v1.eq(0)
+        with m.If(move):
+            m.d.sync += self.r.valid.eq(1)
+        with m.Elif(self.r.ready):
+            m.d.sync += self.r.valid.eq(0)
+        m.d.sync += [idle1.eq(~take_c & (idle1 | move_c)),
+                     idle.eq(idle1 & free_o)]  # nothing moves to `r`, and it is free
+        return take, take_c, ~empty & ~idle1 & ~free_o
+
+    def _read_free(self, m, ram, ne, empty):
+        """The free read: the block's stages and a fabric register run free into an output
+        buffer; an entry leaves the memory while the buffer has room (``room``)."""
+        # entries that left the memory and have not left `r` (the buffer's admission, with
+        # _output_buffer's bound: fewer than READ_BUFFER held when one comes out)
+        n = Signal(range(READ_BUFFER + 1))
+        room = Signal(init=1)  # n <= READ_BUFFER - 1
+        take, take_c = ne & room, ~empty & room
+        m.d.comb += [ram.r_en.eq(1), ram.r_oce.eq(1)]
+        # take's entry: in the block's latch a clock later, its output register two, the
+        # fabric register three
+        valid = _delay(m, take, 3, "read_v")
+        word = _reg(m, ram.r_data, self.width, "read_word", reset_less=True)
+        _output_buffer(m, self.r, READ_BUFFER, word, valid[3])
+        leave = self.r.valid & self.r.ready
+        m.d.sync += [n.eq(_step(n, take, leave)), room.eq(_room(n, READ_BUFFER, take, leave))]
+        return take, take_c, ~empty & ~room
 
 
 def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None):

@@ -172,15 +172,15 @@ class FramePacketizer(wiring.Component):
         # blocks in as few banks as the deepest block (16 384 x 1) allows: the 16-way bank mux
         # of the fewest blocks (2 048 x 9) was the pipeline's worst path in context, from the
         # bank select to the consumer (7.14 ns); two banks cost 18 blocks instead of 16.
-        # The bank mux's output goes into a register of the fabric (`fabric_stage`), not
-        # straight into the output slice's own mux (the blocks -> two LUTs -> the slice was
-        # one of the one-lane pipeline's worst paths, thirty-seventh session), and the read
-        # enables are in two copies, each to half the 18 blocks (`split_enables`: one LUT ->
-        # the output registers' enables of all 18 was 2.8 ns of routing, the one-lane
-        # pipeline's worst path on seed 1, 6.71 ns, thirty-eighth session).
+        # Read free (`free_read`): the bank mux's output goes into a register of the fabric,
+        # not straight into the output slice's own mux (the blocks -> two LUTs -> the slice
+        # was one of the one-lane pipeline's worst paths, thirty-seventh session), and the
+        # blocks' enables are constants: held, they were a LUT of the slice's `w_rdy`, whose
+        # route to the 18 blocks was the one-lane pipeline's worst path on three seeds of the
+        # thirty-eighth session's runs (6.69-7.27 ns).
         banks = max(2, _Store.fewest_banks(self.capacity))
         fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity, max_banks=banks,
-                                          fabric_stage=True, split_enables=True)
+                                          free_read=True)
         # The payload buffer is read through the block RAM's two registers, advanced together
         # (`adv`), two words ahead of the one sent: a read straight out of the block was
         # 5.8 ns of the 5 ns clock before any logic. Nothing writes it while it is read.

@@ -115,8 +115,8 @@ class Gate(wiring.Component):
     -----
     Latency: :data:`LATENCY` = 6 clocks from an input sample to it on ``o`` when the FIFO is
     empty and ``o.ready`` high (the sample register, the write register, the memory write,
-    the two read registers of the block RAM and a register after them); one sample per clock
-    sustained.
+    the two read registers of the block RAM and a register after them, the store read free);
+    one sample per clock sustained.
 
     The registers (``cfg``) and ``bank_id`` act from the clock after they are written: the
     gate reads them, and what it makes of them, from registers of its own, so that no path in
@@ -202,14 +202,14 @@ class Gate(wiring.Component):
         # banks' mux put a LUT fed from blocks apart on the read's path, 4.68 ns of routing
         # from one of them, the one-lane pipeline's worst path on seed 1 (6.50 ns, thirty-sixth
         # session); in one bank each bit's consumer can sit by its block.
-        # The blocks' words reach `o` through a register of the fabric (`fabric_stage`), which
-        # the placer can put by them: straight from the blocks' output registers to the
-        # pipeline's slice after the gate, one of eleven blocks was 5.2 ns of routing away,
-        # the one-lane pipeline's worst path on seed 3 (6.39 ns, thirty-seventh session).
-        # Its read enables in two copies, each to half the blocks (`split_enables`).
+        # Read free (`free_read`): the blocks' words reach `o` through a register of the
+        # fabric, which the placer can put by them (straight from the blocks' output registers
+        # to the pipeline's slice after the gate, one of eleven blocks was 5.2 ns of routing
+        # away, the one-lane pipeline's worst path on seed 3, 6.39 ns, thirty-seventh
+        # session), and `o.ready` reaches none of the blocks' enables.
         data = m.submodules.data = _Store(GATE_OUT.size, self.depth,
                                           max_banks=_Store.fewest_banks(self.depth),
-                                          fabric_stage=True, split_enables=True)
+                                          free_read=True)
         hdrs = m.submodules.hdrs = _Store(_STORED.size, self.header_depth)
 
         # Time and event counters (section 3): `fine` ticks every `fine_div` samples after the

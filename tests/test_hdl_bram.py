@@ -77,13 +77,12 @@ def test_bad_parameters(kwargs):
 # The store in Amaranth's simulator
 
 def run_store(depth, clocks, *, p_write=1.0, p_ready=1.0, p_keep=1.0, seed=0,
-              write_until=None, ready_from=0, fabric_stage=False, split_enables=False):
+              write_until=None, ready_from=0, free_read=False):
     """Drive a ``_Store(24, depth)`` as its writers do (a write only while fewer than ``depth``
     entries are held, counting them until taken from ``r``, and none from clock
     ``write_until`` on; ``r.ready`` low before clock ``ready_from``); return the entries
     kept, those taken, with the clocks of both."""
-    # (24 bits: two columns of blocks, so that the enables' copies read half of them)
-    dut = _Store(24, depth, fabric_stage=fabric_stage, split_enables=split_enables)
+    dut = _Store(24, depth, free_read=free_read)
     rng = random.Random(seed)
     kept, taken = [], []
 
@@ -118,18 +117,15 @@ TRAFFIC = {"plain": {}, "idle": {"p_write": 0.4, "p_keep": 0.8},
            "backpressure": {"p_ready": 0.3, "p_keep": 0.9}}
 
 
-#: The store's variants: with a read stage in the fabric after the block's two
-#: (``fabric_stage``), and with the block RAM's read enables in two copies, each reading half
-#: the columns (``split_enables``).
-VARIANTS = {"two_stages": {}, "fabric_stage": {"fabric_stage": True},
-            "split": {"split_enables": True},
-            "fabric_split": {"fabric_stage": True, "split_enables": True}}
+#: The store's ways to read: held (the block's output register is ``r``), and free (the
+#: block's stages and a fabric register run free into an output buffer, ``free_read``).
+VARIANTS = {"held": {}, "free": {"free_read": True}}
 
 
 def stages(variant):
-    """The read stages after the memory: the block's latch and output register, and with
-    ``fabric_stage`` a register in the fabric after them."""
-    return 3 if VARIANTS[variant].get("fabric_stage") else 2
+    """The read stages between the memory and ``r``: the block's latch and output register,
+    and read free a register in the fabric after them."""
+    return 3 if VARIANTS[variant].get("free_read") else 2
 
 
 @pytest.mark.parametrize("variant", list(VARIANTS))
@@ -267,24 +263,22 @@ class _AsEcp5(Elaboratable):
 class BramTwin(wiring.Component):
     """Two block RAMs of one shape on the same inputs: ``hw`` elaborated for the ECP5."""
 
-    def __init__(self, width, depth, max_banks=None, split_enables=False):
+    def __init__(self, width, depth, max_banks=None):
         self.width, self.depth, self.max_banks = width, depth, max_banks
-        self.split_enables = split_enables
         super().__init__({"w_addr": In(range(depth)), "w_data": In(width), "w_en": In(1),
                           "r_addr": In(range(depth)), "r_en": In(1), "r_oce": In(1),
                           "hw_data": Out(width), "plain_data": Out(width)})
 
     def elaborate(self, platform):
         m = Module()
-        hw = BlockRAM(self.width, self.depth, self.max_banks, self.split_enables)
-        plain = BlockRAM(self.width, self.depth, self.max_banks, self.split_enables)
+        hw = BlockRAM(self.width, self.depth, self.max_banks)
+        plain = BlockRAM(self.width, self.depth, self.max_banks)
         m.submodules.hw = _AsEcp5(hw)
         m.submodules.plain = plain
         for ram in (hw, plain):
             m.d.comb += [ram.w_addr.eq(self.w_addr), ram.w_data.eq(self.w_data),
                          ram.w_en.eq(self.w_en), ram.r_addr.eq(self.r_addr),
-                         ram.r_en.eq(self.r_en), ram.r_oce.eq(self.r_oce),
-                         ram.r_en2.eq(self.r_en), ram.r_oce2.eq(self.r_oce)]
+                         ram.r_en.eq(self.r_en), ram.r_oce.eq(self.r_oce)]
         m.d.comb += [self.hw_data.eq(hw.r_data), self.plain_data.eq(plain.r_data)]
         return m
 
@@ -294,17 +288,15 @@ class _TwinDesign(Design):
         return to_verilog(self.component(**dict(self.params)), self.name) + DP16KD_MODEL
 
 
-@pytest.mark.parametrize("width, depth, max_banks, split", [
-    (42, 4096, None, False), (9, 32768, None, False), (9, 32768, 2, False),
-    (24, 4096, None, False), (24, 768, None, False), (2, 20000, None, False),
-    (42, 4096, None, True), (9, 32768, 2, True)])
-def test_ecp5_against_plain(tmp_path, width, depth, max_banks, split):
+@pytest.mark.parametrize("width, depth, max_banks", [
+    (42, 4096, None), (9, 32768, None), (9, 32768, 2), (24, 4096, None), (24, 768, None),
+    (2, 20000, None)])
+def test_ecp5_against_plain(tmp_path, width, depth, max_banks):
     from cocotb_tools.check_results import get_results
     from cocotb_tools.runner import get_runner
 
     design = _TwinDesign(BramTwin, width=width, depth=depth,
-                         **({"max_banks": max_banks} if max_banks else {}),
-                         **({"split_enables": True} if split else {}))
+                         **({"max_banks": max_banks} if max_banks else {}))
     build_dir = build(design)
     if str(BENCH_DIR) not in sys.path:
         sys.path.insert(0, str(BENCH_DIR))  # the runner hands sys.path to the simulator
