@@ -253,8 +253,8 @@ class _Store(wiring.Component):
     buffer has room for it and those in flight, a register (``room``) counted from the
     leaves on ``r``. Then ``r.ready`` reaches no block: with the stages held, the blocks'
     enables were a LUT of it, and that LUT's route to blocks along the rows far from the
-    consumer was 2.3-2.8 ns, the one-lane pipeline's worst path on every seed of the
-    thirty-eighth session's runs that had the packetizer's FIFO held (6.7-7.3 ns).
+    consumer (2.3-4.3 ns in one net) was the one-lane pipeline's worst path on five seeds of
+    the thirty-eighth session's runs (the packetizer's FIFO, 6.13-7.27 ns).
 
     Parameters
     ----------

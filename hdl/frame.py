@@ -175,9 +175,9 @@ class FramePacketizer(wiring.Component):
         # Read free (`free_read`): the bank mux's output goes into a register of the fabric,
         # not straight into the output slice's own mux (the blocks -> two LUTs -> the slice
         # was one of the one-lane pipeline's worst paths, thirty-seventh session), and the
-        # blocks' enables are constants: held, they were a LUT of the slice's `w_rdy`, whose
-        # route to the 18 blocks was the one-lane pipeline's worst path on three seeds of the
-        # thirty-eighth session's runs (6.69-7.27 ns).
+        # blocks' enables are constants: held, they were a LUT of the slice's `w_rdy` (or of
+        # the FIFO's `r.valid`), whose route to the 18 blocks was the one-lane pipeline's worst
+        # path on five seeds of the thirty-eighth session's runs (6.13-7.27 ns).
         banks = max(2, _Store.fewest_banks(self.capacity))
         fifo = m.submodules.fifo = _Store(BYTE.size, self.capacity, max_banks=banks,
                                           free_read=True)
