@@ -574,11 +574,13 @@ class FramePacketizer(wiring.Component):
             m.d.sync += item.eq(Cat(buf.r_data, buf.r_data[-1].replicate(8)))
 
         # The FIFO's output through a register slice, whose `w_rdy` is a register: the
-        # consumer's `o.ready` then reaches only the slice, not the read enables of the
-        # FIFO's 18 blocks, two banks apart (`o.ready` -> one LUT -> the blocks' enables was
-        # 4.3 ns of routing, the packetizer's worst path alone on seed 1, thirty-seventh
-        # session). A clock more from the FIFO to `o`; the room and the level still count a
-        # byte until it leaves `o`, so admission is unchanged.
+        # consumer's `o.ready` then reaches only the slice, not the FIFO's logic. (Added in
+        # the thirty-seventh session, when the FIFO was read held and `o.ready` -> one LUT ->
+        # the enables of its 18 blocks was 4.3 ns of routing, the packetizer's worst path
+        # alone on seed 1; read free, the blocks' enables are constants, and the slice keeps
+        # `o.ready` off the FIFO's output buffer and its room count.) A clock more from the
+        # FIFO to `o`; the room and the level still count a byte until it leaves `o`, so
+        # admission is unchanged.
         out_slice = m.submodules.out_slice = RegisterSlice(len(fifo.r.payload))
         m.d.comb += [
             out_slice.w_data.eq(fifo.r.payload),
