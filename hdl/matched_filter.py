@@ -729,13 +729,9 @@ class MatchedFilter(wiring.Component):
             m.d.sync += [k_up.eq(Mux(d.first, two_plus, k_up_nf)),
                          up_top.eq(Mux(d.first, tp_top, up_top_nf))]
 
-        # the next clock's state, for the compares made ahead
-        s_known_nx = Signal()
-        m.d.comb += s_known_nx.eq(s_pend)
         with m.If(accept):
             m.d.sync += [n.eq(Mux(d.first, 1, n1)), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel)]
             with m.If(d.first):
-                m.d.comb += s_known_nx.eq(0)
                 m.d.sync += [tag.eq(tag + 1), s_pend.eq(0)]
         # The bin count moves on an accepted sample that is not a frame's first and is the
         # switch sample or past it (`bin_move`): restarted at the switch sample or a full
@@ -752,30 +748,33 @@ class MatchedFilter(wiring.Component):
                          left1.eq(Mux(bin_restart, len_m3, left1 - 1))]
         # "the next sample is s + bin_offset" (`match`) and "a sample at or past it was taken"
         # (`active`: k(n) >= 1 territory), both from compares made a clock ahead, for the
-        # sample n1 if one is accepted now, else n (a frame's first sample clears s_known_nx,
-        # so its case needs none): n1 == start and n1 > start (that is n >= start), or n ==
-        # start and n > start. `active` was a set-clear register of its own, set by an
-        # accepted `match`: its next value then hung on `match`, and that loop (active ->
-        # match -> the enables of `active`) was the pipeline's worst path in two seeds of three
-        # (7.4 and 8.1 ns, three quarters of it routing). Now neither has state: each is one
-        # LUT of two registers. The two are the same once the surface is known before n
-        # reaches start, which `bin_offset >= max_unsurfaced + 1` guarantees (the register's
-        # floor). The compares cannot be made earlier without a clock of SURFACE_APPLY, so
-        # they are kept short: each equality is two compares, made as the signs of
-        # subtractions from registers (14-bit carry chains, where a 30-bit == was a tree of
-        # LUTs), and accept only chooses between them; start >= 2^N_WIDTH (no sample reaches
-        # it) goes into `known` with s_known_nx, beside the compare of the low N_WIDTH bits.
+        # sample n1 if one is accepted now, else n, once the frame's surface is known (the
+        # surface taken, and not by this frame if an accepted sample starts the next): n1 ==
+        # start and n1 > start (that is n >= start), or n == start and n > start. `active`
+        # was a set-clear register of its own, set by an accepted `match`: its next value
+        # then hung on `match`, and that loop (active -> match -> the enables of `active`)
+        # was the pipeline's worst path in two seeds of three (7.4 and 8.1 ns, three
+        # quarters of it routing). Now neither has state, and each is a register: as an AND
+        # of a register `known` with each, the template update was three LUTs from `known`
+        # (`known` -> `k_up`'s reset, the one-lane pipeline's worst path on seed 2, 5.61 ns,
+        # and the filter alone's on seed 1, 5.69 ns, thirty-ninth session). The two are the
+        # same once the surface is known before n reaches start, which `bin_offset >=
+        # max_unsurfaced + 1` guarantees (the register's floor). The compares cannot be made
+        # earlier without a clock of SURFACE_APPLY, so they are kept short: each equality is
+        # two compares, made as the signs of subtractions from registers (14-bit carry
+        # chains, where a 30-bit == was a tree of LUTs), and accept only chooses between
+        # them, in the last LUT; start >= 2^N_WIDTH (no sample reaches it) goes in beside the
+        # compare of the low N_WIDTH bits.
         start_lo = start[:N_WIDTH]
         ge_n1 = _le(start_lo, n1)  # n + 1 >= start
         ge_n = _le(start_lo, n)  # n >= start
         gt_n = ~_le(n, start_lo)  # n > start
-        eq_q, act_q, known = Signal(), Signal(), Signal()
+        known = s_pend & (start[N_WIDTH:] == 0)  # (at an accepted first sample: ~d.first)
+        known_a = known & ~d.first
         m.d.sync += [
-            known.eq(s_known_nx & (start[N_WIDTH:] == 0)),
-            eq_q.eq(Mux(accept, ge_n1 & ~ge_n, ge_n & ~gt_n)),
-            act_q.eq(Mux(accept, ge_n, gt_n)),
+            match.eq(Mux(accept, known_a & ge_n1 & ~ge_n, known & ge_n & ~gt_n)),
+            active.eq(Mux(accept, known_a & ge_n, known & gt_n)),
         ]
-        m.d.comb += [match.eq(known & eq_q), active.eq(known & act_q)]
 
         # ---- stages 1, 2: the sample (twice) and the template `k` (registered: the template
         # decision is the longest path before the memories); stage 3: the delay line, beside

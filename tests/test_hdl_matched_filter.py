@@ -153,6 +153,18 @@ def lidar_case():
     return Case(bank, cfg, list(x), [int(s) for s in res.surface.n])
 
 
+def switch_at_end_case():
+    """The switch sample s + bin_offset at a frame's last sample, one past it and two past,
+    each frame followed by another: the next frame's samples start at template 0 (the compare
+    made ahead for a frame's second sample must not see the last frame's surface)."""
+    rng = np.random.default_rng(8)
+    bank = Bank(rng.integers(S16_LO, S16_HI + 1, (4, 3)).astype(np.int16))
+    frames = [rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16)
+              for n in (30, 30, 30, 25, 26, 10)]
+    return Case(bank, Config(out_shift=17, bin_offset=24, bin_len=2), frames,
+                [5, 6, 7, 1, 2, -1])
+
+
 CASES = {
     "random_K16_L64": lambda: random_case(16, L_MAX, seed=1),
     "random_K3_L7": lambda: random_case(3, 7, seed=2, out_shift=17, bin_offset=65535 - 0,
@@ -164,6 +176,7 @@ CASES = {
     "rails_K1_L64_shift0": rails_case,
     "K16_L1_shift31": shift31_case,
     "lidar_K8_L32": lidar_case,
+    "switch_at_frame_end_K4_L3": switch_at_end_case,
 }
 
 
