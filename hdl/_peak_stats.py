@@ -227,11 +227,18 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     # and 3, thirty-fourth session; the 24-bit chain and the select, 5.5-6.2 ns on all three
     # seeds, thirty-fifth)
     prod_thr = prod >> 4
+    # min_thr's copy beside these: the register of the port is the link's, far away in the
+    # device, and its route into the floor's chain was the whole device's worst path on seed 2
+    # (`cfg.min_thr` -> the chain -> `thr_above`, 6.97 ns, 4.38 of it routing, thirty-ninth
+    # session). A clock later than the port is soon enough: the products of a frame's noise
+    # come four clocks or more after its first sample, and the register is written between
+    # frames (a write at a frame's first sample holds for that frame, as the model's).
     w = len(cfg.min_thr)
-    above = _reg(m, prod_thr[w:].any() | _sub_sign(m, cfg.min_thr, prod_thr[:w], "thr_floor"),
+    min_thr = _reg(m, cfg.min_thr, w, "thr_min")
+    above = _reg(m, prod_thr[w:].any() | _sub_sign(m, min_thr, prod_thr[:w], "thr_floor"),
                  1, "thr_above")
     prod_thr_q = _reg(m, prod_thr, len(prod_thr), "thr_prod")
-    thr_next = Mux(above, prod_thr_q, cfg.min_thr)
+    thr_next = Mux(above, prod_thr_q, min_thr)
     with m.If(prod_new):
         m.d.sync += thr.eq(thr_next)
     # y - mu > thr as y > bound = mu + thr, capped at the s24 maximum (which no y exceeds), so
@@ -249,7 +256,7 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     mu_early = mu_at[depth + 8 if LA else 0]
     total_shape = signed(max(OUT_WIDTH, THR_WIDTH + 1) + 1)
     sum_prod = _reg(m, mu_early + prod_thr, total_shape, "bound_prod")
-    sum_min = _reg(m, mu_early + cfg.min_thr, total_shape, "bound_min")
+    sum_min = _reg(m, mu_early + min_thr, total_shape, "bound_min")
     total = _reg(m, Mux(above, sum_prod, sum_min), total_shape, "bound_total")
     # the surface's bound mu + min_surf likewise, from the same mu, loaded with bound
     sbound = Signal(_Y)
