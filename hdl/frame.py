@@ -328,14 +328,21 @@ class FramePacketizer(wiring.Component):
         put = Signal()  # a byte chosen for the FIFO at this clock (`put_q`: written at the next)
         put_q = Signal()
         got = self.o.valid & self.o.ready
-        # the room counts a byte from its choice (a clock early: it only errs on the safe side),
-        # the level from its write
-        m.d.sync += [room.eq(_step(room, got, put)), level.eq(_step(level, put_q, got))]
-        # and registered twice, a clock apart: once at the compare's carry chain, once beside
-        # the decision's registers (as one register the chain's end ran 2.3 ns to the
-        # decision's side, the pipeline's worst path on seed 1, 6.08 ns, thirty-sixth session)
-        fits_c, fits = Signal(), Signal()
-        m.d.sync += [fits_c.eq(_le(body, room)), fits.eq(fits_c)]
+        # the room counts a byte from its choice (a clock early) and a byte sent a clock
+        # after it leaves (`got_q`, so that `o.ready` reaches no enable of the count): both
+        # err on the safe side only. The level counts a byte from its write to its leave.
+        got_q = Signal()
+        m.d.sync += [got_q.eq(got), room.eq(_step(room, got_q, put)),
+                     level.eq(_step(level, put_q, got))]
+        # The compare registered twice, a clock apart: once at the compare's carry chain,
+        # once beside the decision's registers (as one register the chain's end ran 2.3 ns to
+        # the decision's side, the pipeline's worst path on seed 1, 6.08 ns, thirty-sixth
+        # session); the second is the decision itself, "it fits and the frame was not
+        # overlong" (`over` is settled from RESULT on): as `fits & ~over` in DECIDE, `over`
+        # -> two LUTs -> the enables of the packet's registers was the one-lane pipeline's
+        # worst path on seed 1 (5.63 ns, 4.40 of it routing, thirty-ninth session).
+        fits_c, send = Signal(), Signal()
+        m.d.sync += [fits_c.eq(_le(body, room)), send.eq(fits_c & ~over)]
 
         # ---- emit: packet header, frame header (+ records), samples, CRC ----
         # The state machine chooses each byte and what the CRCs do with it, all into registers
@@ -494,10 +501,11 @@ class FramePacketizer(wiring.Component):
         with fsm.state("DECIDE"):
             # `sh` (384 bits) loads whether the packet fits or not (a dropped packet's is never
             # read, and the next DECIDE loads it again): its load then waits on the state
-            # alone, not on `fits`, whose two LUTs and two long hops into the wide enable were
-            # the pipeline's worst path in two seeds (7.41 and 7.61 ns, 6 of it routing).
+            # alone, not on the decision (then `fits`), whose two LUTs and two long hops into
+            # the wide enable were the pipeline's worst path in two seeds (7.41 and 7.61 ns, 6
+            # of it routing).
             m.d.sync += sh.eq(Cat(fin, res.surface, res.bottom))
-            with m.If(fits & ~over):
+            with m.If(send):
                 m.d.sync += [
                     pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
                                Const(PacketType.FRAME, 8), seq, body)),

@@ -239,7 +239,6 @@ class Gate(wiring.Component):
         sync = p.line_sync
         sat_now = ~sync & fine_sat
         coarse_now = Mux(sync, coarse1, coarse)  # modulo 2^24 by the signal's width
-        period = sync | renew  # this step is the first of a tick period
         # a step ticks when it is the first of a period and fine_div <= 1, or when its
         # period's count ran out; without a line sync that is `tick_ns`, from registers alone
         tick_ns = Mux(renew, div_le1, rem0)
@@ -253,13 +252,18 @@ class Gate(wiring.Component):
             # set/reset, three LUTs from `line_sync` into its LSR: the one-lane pipeline's
             # worst path on seed 3 (6.6 ns, thirty-fifth session). As data, one LUT.
             m.d.sync += renew.eq(tick)
-            with m.If(~tick):
-                with m.If(period):
-                    m.d.sync += [rem.eq(div_m2), rem0.eq(div2)]
-                with m.Else():
-                    # here rem >= 1 (rem0 is clear), so rem == 1 is rem <= 1: a carry
-                    # chain's sign, not a tree of LUTs over the whole width
-                    m.d.sync += [rem.eq(rem - 1), rem0.eq(_le(rem, 1))]
+            # `rem` and `rem0` are read only at a step that is not a period's first (renew
+            # and the sync low), so what a tick step leaves in them is never read: the step
+            # after a tick is a period's first. So they load the period's start at a period's
+            # first step and count down at the others, tick or not, one LUT from the sync to
+            # their data. (Loaded only at a step without a tick, their enable was two LUTs
+            # from `line_sync`, its route from the stage before 4.5 ns: the one-lane
+            # pipeline's worst path on seed 3, 5.49 ns, thirty-ninth session.) Counting down
+            # without a tick, rem >= 1 (rem0 is clear), so rem == 1 is rem <= 1: a carry
+            # chain's sign, not a tree of LUTs over the whole width.
+            period = sync | renew  # this step is the first of a tick period
+            m.d.sync += [rem.eq(Mux(period, div_m2, rem - 1)),
+                         rem0.eq(Mux(period, div2, _le(rem, 1)))]
         # The fine counter's restart on a line sync comes first, outside the other updates,
         # so that Yosys makes it the flip-flops' own reset over their enable (LSR = step &
         # sync, one LUT of two registers), and the tick it tests is `div_le1` there and
@@ -461,8 +465,17 @@ class Gate(wiring.Component):
         # clock's reads. The memories take each write a clock after its decision, from
         # registers (`w_q`, `hw_q`: data, enable, keep), so that the decision reaches no
         # store's pointer either: it fans out to the flags above and these registers only.
+        # The sample reads are counted a clock late too (`rd_q`), so that `o.ready` reaches
+        # no enable of the four counts: the pipeline's slice after the gate, placed by the
+        # stitch, -> its `w_rdy` -> the read -> the enables of `lfree_m3` was the one-lane
+        # pipeline's worst path on seed 2 (5.89 ns, 4.89 of it routing, thirty-ninth
+        # session). A read only frees room, so the admission sees at most one read less than
+        # it might: a frame that would fit by that entry alone is dropped whole, as it would
+        # be with a consumer a clock slower. (The header reads are counted as they happen:
+        # `HEADERS_IN_FLIGHT` is exact with them.)
+        rd_q = _reg(m, rd, 1, "rd_q")
         m.d.sync += [
-            [v.eq(_step(v, rd, wr_q)) for v in lfree],
+            [v.eq(_step(v, rd_q, wr_q)) for v in lfree],
             [v.eq(_step(v, hrd, hwr_q)) for v in hlfree_m],
         ]
         w_q = Signal(data.w_data.shape(), name="w_q")

@@ -132,6 +132,22 @@ def test_packets(tmp_path, ftype, traffic_name):
             first = e + 1
 
 
+def test_room_comes_back(tmp_path):
+    """A FIFO that holds the largest packet and no more, an always-ready consumer: every
+    packet goes out, none is dropped, though together they are many times the capacity (the
+    room counts the bytes sent back in; the largest packet fits the drained FIFO exactly)."""
+    f = frames_of(FrameType.FILTERED)
+    capacity = max(packet_size(len(fr)) for fr in f.frames)
+    assert sum(packet_size(len(fr)) for fr in f.frames) > 4 * capacity
+    design = Design(FramePacketizer, capacity=capacity, max_samples=MAX_SAMPLES)
+    source, sink = TRAFFIC["plain"]
+    res = run(design, tmp_path, sources=f.sources(source), sinks={"o": Sink(BYTE, sink)},
+              watch=("frames_sent", "frames_dropped", "fifo_level"))
+    assert not res.timeout and res.violations == {"o": 0}
+    assert _bytes(res)[0] == f.packets()
+    assert res.watch == {"frames_sent": len(f.frames), "frames_dropped": 0, "fifo_level": 0}
+
+
 def test_whole_packet_admission(tmp_path):
     """A blocked consumer: packets are admitted greedily while they fit, the rest dropped."""
     f = Frames()
