@@ -34,7 +34,7 @@ from ._bram import BlockRAM
 from ._crc import SplitCRC
 from ._link_rx import RD_LATENCY, LinkReceiver, check_buffer_bytes, max_payload
 from ._link_tx import ACK_INFO, ACK_PAYLOAD_MAX, FRAME_BYTE, LinkTransmitter
-from ._primitives import OneHotFSM
+from ._primitives import OneHotFSM, _reg
 from .layouts import config_signature
 from .matched_filter import COEF_WRITE
 
@@ -54,7 +54,7 @@ POWER_ON_COEF = 1
 #: which read the ring through the block RAM's output register (four clocks more in the
 #: receiver, two in the payload's fetch), plans the answer a clock before its decision and
 #: loads it a clock after.
-ACK_LATENCY = 23
+ACK_LATENCY = 24
 
 # payload bytes a command is checked and remembered by (BANK_COMMIT's K, L, crc is the longest)
 _KEY_BYTES = 6
@@ -110,10 +110,10 @@ class Link(wiring.Component):
     Notes
     -----
     Latency, with the transmitter idle and ``tx`` ready: the first acknowledgement byte is on
-    ``tx`` ``ACK_LATENCY = 23`` clocks after the command's last byte was taken on ``rx`` (7 to
+    ``tx`` ``ACK_LATENCY = 24`` clocks after the command's last byte was taken on ``rx`` (7 to
     read the CRC byte through the receiver's ring and queue, check it and deliver, 9 to fetch
-    the payload head, six bytes each ``RD_LATENCY = 3`` clocks after its offset, 2 to check it
-    (``CHECK``, ``CHECK2``), 1 to plan the answer (``PLAN``), 1 to decide, 1 to load the
+    the payload head, six bytes each ``RD_LATENCY = 3`` clocks after its offset, 3 to check it
+    (``CHECK``, ``CHECK2``, ``CHECK3``), 1 to plan the answer (``PLAN``), 1 to decide, 1 to load the
     acknowledgement (``DONE``), 2 to start the packet), two more when the bytes came on
     consecutive clocks; an acknowledgement of ``n`` payload bytes then takes ``12 + n``
     clocks. ``BANK_WRITE`` of ``n`` words adds ``2 n + 3`` clocks (a payload byte per clock),
@@ -252,7 +252,7 @@ class Link(wiring.Component):
         # one flip-flop per state (hdl._primitives.OneHotFSM), not a decode of a binary state
         # register (`fsm_state` -> the receiver's `base` and the plan's registers were the
         # device's worst paths, thirty-fifth session)
-        fsm = OneHotFSM(m, ("BOOT", "IDLE", "FETCH", "CHECK", "CHECK2", "PLAN", "DECIDE",
+        fsm = OneHotFSM(m, ("BOOT", "IDLE", "FETCH", "CHECK", "CHECK2", "CHECK3", "PLAN", "DECIDE",
                             "BANK_WRITE", "SCAN", "WAIT_IDLE", "COPY_READ", "COPY_WAIT",
                             "COPY_WRITE", "DONE"), name="exec")
 
@@ -287,11 +287,13 @@ class Link(wiring.Component):
             with m.If(fetch == _KEY_BYTES - 1 + RD_LATENCY):
                 fsm.next("CHECK")
         with fsm.state("CHECK"):
-            # the checks of `flags` are registered in two stages (CHECK, CHECK2), so
-            # DECIDE sees them as flip-flops: compares and a choice among the registers,
-            # which did not fit one clock; the plan made of them is a third (PLAN)
+            # the checks of `flags` are registered in up to three stages (CHECK, CHECK2,
+            # CHECK3), so DECIDE sees them as flip-flops: compares and a choice among the
+            # registers, which did not fit one clock; the plan made of them is a fourth (PLAN)
             fsm.next("CHECK2")
         with fsm.state("CHECK2"):
+            fsm.next("CHECK3")
+        with fsm.state("CHECK3"):
             fsm.next("PLAN")
         with fsm.state("PLAN"):
             fsm.next("DECIDE")
@@ -446,8 +448,19 @@ class Link(wiring.Component):
         sel = [Signal(name=f"chk_sel{i}") for i in range(len(REGISTERS))]
         rng = [Signal(name=f"chk_rng{i}") for i in range(len(REGISTERS))]
         m.d.sync += [sel[i].eq(addr_is[i] & p1_zero) for i in range(len(REGISTERS))]
-        m.d.sync += [rng[i].eq((value >= r.lo) & (value <= r.hi))
-                     for i, r in enumerate(REGISTERS)]
+        # The range test in two stages: each 16-bit half of the value against the halves of
+        # the bounds (compares with constants), then one LUT or two of those flags. As two
+        # 32-bit compares, `p3` -> a chain -> `chk_rng14` was the whole device's worst path
+        # on seed 1 (6.66 ns, thirty-ninth session); the stage costs a state (`CHECK3`).
+        v_hi, v_lo = value[16:], value[:16]
+        for i, r in enumerate(REGISTERS):
+            assert 0 <= r.lo <= r.hi < 1 << 32
+            halves = {"lo_gt": v_hi > r.lo >> 16, "lo_eq": v_hi == r.lo >> 16,
+                      "lo_ge": v_lo >= r.lo & 0xFFFF, "hi_lt": v_hi < r.hi >> 16,
+                      "hi_eq": v_hi == r.hi >> 16, "hi_le": v_lo <= r.hi & 0xFFFF}
+            h = {k: _reg(m, v, 1, f"chk_{k}{i}") for k, v in halves.items()}
+            m.d.sync += rng[i].eq((h["lo_gt"] | (h["lo_eq"] & h["lo_ge"]))
+                                  & (h["hi_lt"] | (h["hi_eq"] & h["hi_le"])))
         m.d.sync += [
             f["read"].eq(reduce(or_, [Mux(sel[i], reg, 0) for i, reg in enumerate(regs)])),
             f["in_range"].eq(reduce(or_, [sel[i] & rng[i] for i in range(len(regs))])),
