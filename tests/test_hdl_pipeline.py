@@ -105,6 +105,40 @@ def test_frames(tmp_path, scene, ftype, sink_name):
         assert all(f[3] & 0x0C == 0x0C for f in ref), "the scene has a surface and a bottom"
 
 
+def test_held_frames_take_the_bank_id_they_enter_with(tmp_path, scene):
+    """``bank_busy`` holds frames 1 and 2 at the filter's door while the packetizer waits for
+    a header; it drops, with a new ``bank_id``, as frame 3 is triggered. A header goes to the
+    packetizer only once its frame is inside, so every held frame carries the new id, as the
+    frames of a bank committed while they waited use the new bank. (The count of frames
+    inside waiting for their headers does not reach two here.)"""
+    src, bank, cfg = scene
+    cfg = cfg.replace(frame_type=FrameType.PEAKS)
+    n, prf = 4, prf_for(FrameType.PEAKS, cfg.gate_len)
+    assert 3 * cfg.gate_len <= 4096, "the gate's FIFO must hold the held frames"
+    static = {**cfg_ports(cfg, "stitch", "cfg_stitch"), **cfg_ports(cfg, "gate", "cfg_gate"),
+              **cfg_ports(cfg, "filter", "cfg_filter"), **cfg_ports(cfg, "peak", "cfg_peak"),
+              "templates": bank.K, "taps": bank.L, "bank_id": BANK_ID, "acquiring": 1,
+              "bank_busy": 0}
+    adc = adc_source(src, n, prf)
+    # (frame 0 has long passed the hold when the busy rises, a clock before frame 1's trigger)
+    adc.changes = [(prf - 1, "bank_busy", 1),
+                   (3 * prf, "bank_busy", 0), (3 * prf, "bank_id", BANK_ID + 1)]
+    res = run(Design(Pipeline), tmp_path, sources={"coef": coef_source(bank), "i": adc},
+              sinks={"o": Sink(BYTE, PLAIN)}, static=static,
+              watch=("frames_sent", "frames_dropped", "frame_idle"),
+              quiet_clocks=prf + 4 * cfg.gate_len, max_clocks=(n + 20) * prf,
+              label="pipeline-bank-busy")
+    assert not res.timeout and res.violations == {"o": 0}
+    got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
+    old, new = (reference_frames(src, cfg, bank, 0, n, prf, bank_id=b)
+                for b in (BANK_ID, BANK_ID + 1))
+    want = [old[0], *new[1:]]
+    assert len(got) == n
+    for seq, (g, frame) in enumerate(zip(got, want, strict=True)):
+        assert g == encode_packet(PacketType.FRAME, seq, frame), f"packet {seq} differs"
+    assert res.watch == {"frames_sent": n, "frames_dropped": 0, "frame_idle": 1}
+
+
 def test_overload_drops_whole_frames(tmp_path, scene):
     """Slow consumer, triggers faster than the packets leave: the FIFO fills and frames are
     dropped, all whole. (The production build, 32 KiB: stitched packets of 1 512 bytes come
