@@ -474,11 +474,7 @@ class FramePacketizer(wiring.Component):
             with m.If(take):
                 # peak frames need no samples; an overlong frame is dropped at its end
                 with m.If(~full):
-                    # n < max_samples here, so n == max_samples - 1 is n >= max_samples - 1: a
-                    # carry chain's sign, where the equality was a tree of LUTs (`n` -> four
-                    # LUTs -> `full`, the one-lane pipeline's worst path on seed 1, 5.76 ns,
-                    # thirty-ninth session)
-                    m.d.sync += [n.eq(n + 1), full.eq(_le(self.max_samples - 1, n))]
+                    m.d.sync += [n.eq(n + 1), full.eq(n == self.max_samples - 1)]
                 with m.Else():
                     m.d.sync += over.eq(1)
                 with m.If(beat.last):

@@ -338,18 +338,10 @@ class Pipeline(wiring.Component):
         inside = Signal(_INSIDE_BITS)  # frames entered, results not yet taken
         waiting = Signal(_INSIDE_BITS)  # frames entered, headers not yet taken
         ready_h = Signal()  # waiting != 0
-        # waiting == 1, a register beside the count, its next value chosen among the count's
-        # compares by the moves: as `waiting != 1` in ready_h's next value, `waiting` -> three
-        # LUTs -> `ready_h` was the one-lane pipeline's worst path on seed 2 (5.77 ns, 4.51 of
-        # it routing, thirty-ninth session); now ready_h is one LUT of registers and the
-        # handshake
-        w_one = Signal()
         h_take = pk.header.valid & pk.header.ready
         m.d.sync += [inside.eq(_step(inside, entered, done)),
                      waiting.eq(_step(waiting, entered, h_take)),
-                     w_one.eq(Mux(entered, Mux(h_take, w_one, waiting == 0),
-                                  Mux(h_take, waiting == 2, w_one))),
-                     ready_h.eq(entered | Mux(h_take, ~w_one, ready_h))]
+                     ready_h.eq(entered | Mux(h_take, waiting != 1, ready_h))]
         m.d.comb += [
             pk.header.payload.eq(gate.header.payload),
             pk.header.payload.bank_id.eq(self.bank_id),
