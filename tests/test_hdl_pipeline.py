@@ -139,6 +139,21 @@ def test_held_frames_take_the_bank_id_they_enter_with(tmp_path, scene):
     assert res.watch == {"frames_sent": n, "frames_dropped": 0, "frame_idle": 1}
 
 
+@pytest.mark.parametrize("stop", [200, 500])
+def test_frame_idle_is_low_with_a_frame_inside(tmp_path, scene, stop):
+    """Runs cut short (``max_clocks``) while the first frame streams into the filter, early
+    and late in it: ``frame_idle`` is low (a commit would otherwise change the bank under the
+    frame); it is high once everything has left (``test_frames``)."""
+    src, bank, cfg = scene
+    cfg = cfg.replace(frame_type=FrameType.PEAKS)
+    assert stop + 64 < cfg.gate_len, "the cut must fall inside the first frame"
+    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, 2,
+                       prf_for(FrameType.PEAKS, cfg.gate_len), PLAIN, f"pipeline-idle-{stop}",
+                       max_clocks=stop)
+    assert res.timeout
+    assert res.watch["frame_idle"] == 0
+
+
 def test_overload_drops_whole_frames(tmp_path, scene):
     """Slow consumer, triggers faster than the packets leave: the FIFO fills and frames are
     dropped, all whole. (The production build, 32 KiB: stitched packets of 1 512 bytes come
