@@ -339,11 +339,6 @@ class Pipeline(wiring.Component):
         waiting = Signal(_INSIDE_BITS)  # frames entered, headers not yet taken
         ready_h = Signal()  # waiting != 0
         h_take = pk.header.valid & pk.header.ready
-        # inside == 0, a register beside the count (from its compare with 1 and the moves):
-        # as the count's 8-bit compare, `inside` -> `frame_idle` -> the link's copy counters
-        # was the whole device's worst path on seed 2 (6.68 ns, thirty-ninth session)
-        none_inside = Signal(init=1)
-        m.d.sync += none_inside.eq(Mux(entered, 0, Mux(done, inside == 1, none_inside)))
         m.d.sync += [inside.eq(_step(inside, entered, done)),
                      waiting.eq(_step(waiting, entered, h_take)),
                      ready_h.eq(entered | Mux(h_take, waiting != 1, ready_h))]
@@ -352,7 +347,7 @@ class Pipeline(wiring.Component):
             pk.header.payload.bank_id.eq(self.bank_id),
             pk.header.valid.eq(gate.header.valid & ready_h),
             gate.header.ready.eq(pk.header.ready & ready_h),
-            self.frame_idle.eq(none_inside & ~entered),
+            self.frame_idle.eq((inside == 0) & ~entered),
         ]
 
         # ---- counters ----
