@@ -418,13 +418,12 @@ class _Store(wiring.Component):
         _output_buffer(m, self.r, READ_BUFFER, word, valid[3])
         leave = self.r.valid & self.r.ready
 
-        def after_moves(test):
-            # a test of n1 + take - left (the count after this clock's take, before its
-            # leave): test(c, n) tests n + c, so each case compares the register with a constant
-            return Mux(take & ~left, test(1, n1), Mux(left & ~take, test(-1, n1), test(0, n1)))
-
-        below = after_moves(lambda c, n: n <= READ_BUFFER - 1 - c)
-        full = after_moves(lambda c, n: n == READ_BUFFER - c)
+        # n1 + take - left (the count after this clock's take, before its leave) at most
+        # READ_BUFFER - 1 (`below`) or equal to READ_BUFFER (`full`), each case a compare of
+        # the register with a constant
+        up, down = take & ~left, left & ~take
+        below = Mux(up, n1 <= READ_BUFFER - 2, Mux(down, n1 <= READ_BUFFER, n1 <= READ_BUFFER - 1))
+        full = Mux(up, n1 == READ_BUFFER - 1, Mux(down, n1 == READ_BUFFER + 1, n1 == READ_BUFFER))
         m.d.sync += [n1.eq(_step(n1, take, left)), left.eq(leave),
                      room.eq(below | (full & leave))]
         return take, take_c, ~empty & ~room

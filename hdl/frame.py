@@ -44,7 +44,7 @@ from model.registers import by_name
 
 from ._bram import BlockRAM
 from ._crc import SplitCRC
-from ._primitives import OneHotFSM, RegisterSlice, _le, _step, _Store
+from ._primitives import OneHotFSM, RegisterSlice, _le, _reg, _step, _Store
 from .layouts import CODES, FRAME_HEADER_LAYOUT, STITCHED
 from .peak_detect import PEAK_RESULT
 
@@ -331,9 +331,8 @@ class FramePacketizer(wiring.Component):
         # the room counts a byte from its choice (a clock early) and a byte sent a clock
         # after it leaves (`got_q`, so that `o.ready` reaches no enable of the count): both
         # err on the safe side only. The level counts a byte from its write to its leave.
-        got_q = Signal()
-        m.d.sync += [got_q.eq(got), room.eq(_step(room, got_q, put)),
-                     level.eq(_step(level, put_q, got))]
+        got_q = _reg(m, got, 1, "got_q")
+        m.d.sync += [room.eq(_step(room, got_q, put)), level.eq(_step(level, put_q, got))]
         # The compare registered twice, a clock apart: once at the compare's carry chain,
         # once beside the decision's registers (as one register the chain's end ran 2.3 ns to
         # the decision's side, the pipeline's worst path on seed 1, 6.08 ns, thirty-sixth

@@ -51,15 +51,19 @@ def adc_source(src: SceneSource, n: int, prf_clocks: int, pattern: Pattern = PLA
 
 
 def run_pipeline(tmp_path, design, src, bank, cfg, n, prf_clocks, sink: Pattern, label,
-                 max_clocks=None):
+                 max_clocks=None, changes=(),
+                 watch=("frames_sent", "frames_dropped", "fifo_level", "shots", "frame_idle")):
+    """The pipeline on ``n`` shots of the scene; ``changes`` are ``(beat, port, value)`` writes
+    made with the ADC stream (``hdl.tb.cosim.Source``)."""
+    adc = adc_source(src, n, prf_clocks)
+    adc.changes = list(changes)
     static = {**cfg_ports(cfg, "stitch", "cfg_stitch"), **cfg_ports(cfg, "gate", "cfg_gate"),
               **cfg_ports(cfg, "filter", "cfg_filter"), **cfg_ports(cfg, "peak", "cfg_peak"),
               "templates": bank.K, "taps": bank.L, "bank_id": BANK_ID, "acquiring": 1,
               "bank_busy": 0}
     return run(design, tmp_path,
-               sources={"coef": coef_source(bank), "i": adc_source(src, n, prf_clocks)},
-               sinks={"o": Sink(BYTE, sink)}, static=static,
-               watch=("frames_sent", "frames_dropped", "fifo_level", "shots", "frame_idle"),
+               sources={"coef": coef_source(bank), "i": adc},
+               sinks={"o": Sink(BYTE, sink)}, static=static, watch=watch,
                quiet_clocks=prf_clocks + 4 * cfg.gate_len,
                max_clocks=max_clocks or (n + 20) * prf_clocks,
                label=label)
@@ -115,19 +119,12 @@ def test_held_frames_take_the_bank_id_they_enter_with(tmp_path, scene):
     cfg = cfg.replace(frame_type=FrameType.PEAKS)
     n, prf = 4, prf_for(FrameType.PEAKS, cfg.gate_len)
     assert 3 * cfg.gate_len <= 4096, "the gate's FIFO must hold the held frames"
-    static = {**cfg_ports(cfg, "stitch", "cfg_stitch"), **cfg_ports(cfg, "gate", "cfg_gate"),
-              **cfg_ports(cfg, "filter", "cfg_filter"), **cfg_ports(cfg, "peak", "cfg_peak"),
-              "templates": bank.K, "taps": bank.L, "bank_id": BANK_ID, "acquiring": 1,
-              "bank_busy": 0}
-    adc = adc_source(src, n, prf)
     # (frame 0 has long passed the hold when the busy rises, a clock before frame 1's trigger)
-    adc.changes = [(prf - 1, "bank_busy", 1),
-                   (3 * prf, "bank_busy", 0), (3 * prf, "bank_id", BANK_ID + 1)]
-    res = run(Design(Pipeline), tmp_path, sources={"coef": coef_source(bank), "i": adc},
-              sinks={"o": Sink(BYTE, PLAIN)}, static=static,
-              watch=("frames_sent", "frames_dropped", "frame_idle"),
-              quiet_clocks=prf + 4 * cfg.gate_len, max_clocks=(n + 20) * prf,
-              label="pipeline-bank-busy")
+    changes = [(prf - 1, "bank_busy", 1),
+               (3 * prf, "bank_busy", 0), (3 * prf, "bank_id", BANK_ID + 1)]
+    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, n, prf, PLAIN,
+                       "pipeline-bank-busy", changes=changes,
+                       watch=("frames_sent", "frames_dropped", "frame_idle"))
     assert not res.timeout and res.violations == {"o": 0}
     got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
     old, new = (reference_frames(src, cfg, bank, 0, n, prf, bank_id=b)
