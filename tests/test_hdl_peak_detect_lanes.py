@@ -212,6 +212,40 @@ def test_verilator(tmp_path, lanes, traffic_name):
         check_latencies(res, st, results, dut)
 
 
+#: A noise window that a frame's second beat reaches at 6 lanes: one tap and P = 4, so W + 2P
+#: = 8, the first candidate sample; a second beat of 4 samples or more reaches it (the frame's
+#: first beat after it, W + 2P + 1, must wait for the threshold), one of 3 does not (the flags
+#: made at a frame's first beat for the beat after it, `next_needs` in hdl/_peak_lanes.py). At
+#: 4 lanes no register set has such a window (W + 2P >= 8 > 2 x 4 - 2).
+WINDOW_LANES = 6
+WINDOW_IN_TWO_BEATS = (1, Config(noise_log2=2, k_thr_q4=32, min_thr=2, min_sep=1,
+                                 bottom_rule=0))
+
+
+@pytest.mark.parametrize("traffic_name", list(TRAFFIC))
+def test_verilator_window_within_two_beats(tmp_path, traffic_name):
+    """Frames of every length from W + 2P up through a build of :data:`WINDOW_LANES` lanes,
+    bit-exact: a beat that needs the threshold and goes without it gives another result. (One
+    that waits for a threshold it does not need gives the same, a few clocks later: the
+    two-beat frames come back to back, each behind the result before it, so no latency of
+    theirs is their own to check.)"""
+    L, cfg = WINDOW_IN_TWO_BEATS
+    lanes = WINDOW_LANES
+    ys, ks = lane_frames(L, cfg, lanes, np.random.default_rng(11))
+    assert {len(y) for y in ys} >= {lanes + 3, lanes + 4}  # second beats of 3 and 4 samples
+    fr = Frames(L, cfg, ys, ks)
+    source, sink = TRAFFIC[traffic_name]
+    res = run(Design(PeakDetect, lanes=lanes), tmp_path,
+              sources={"i": lane_source(fr.ys, fr.ks, lanes, source)},
+              sinks={"o": Sink(PEAK_RESULT, sink), "surface": Sink(SURFACE, PLAIN)},
+              static={**cfg_ports(cfg, "peak"), "taps": L},
+              label=f"peak_detect_l{lanes}_window-{traffic_name}")
+    assert not res.timeout and res.violations == {"o": 0, "surface": 0}
+    results = fr.results()
+    check_results(res.sinks["o"], results)
+    check_surfaces(res.sinks["surface"], results)
+
+
 def test_lane_frames_reach_the_cases():
     """The lane frames hold what they are for (else the Verilator runs prove less)."""
     L, cfg = CONFIGS["rule0"]
