@@ -212,27 +212,28 @@ def test_verilator(tmp_path, lanes, traffic_name):
         check_latencies(res, st, results, dut)
 
 
-#: A noise window that a frame's second beat reaches at 6 lanes: one tap and P = 4, so W + 2P
-#: = 8, the first candidate sample; a second beat of 4 samples or more reaches it (the frame's
-#: first beat after it, W + 2P + 1, must wait for the threshold), one of 3 does not (the flags
-#: made at a frame's first beat for the beat after it, `next_needs` in hdl/_peak_lanes.py). At
-#: 4 lanes no register set has such a window (W + 2P >= 8 > 2 x 4 - 2).
-WINDOW_LANES = 6
+#: A noise window within a frame's first two beats: one tap and P = 4, so the first candidate
+#: sample is W + 2P = 8, and a beat that reaches W + 2P + 1 must wait for the threshold. At 6
+#: lanes a frame's second beat of 4 samples or more does, one of 3 does not (the flags made at
+#: a frame's first beat for the beat after it, `next_needs` in hdl/_peak_lanes.py); at 12
+#: lanes a first beat of 10 samples or more does, one of 9 does not (`first_needs`). At 4
+#: lanes no register set has such a window (W + 2P >= 8 > 2 x 4 - 2); the 1 GS/s build has 11.
 WINDOW_IN_TWO_BEATS = (1, Config(noise_log2=2, k_thr_q4=32, min_thr=2, min_sep=1,
                                  bottom_rule=0))
+#: lanes -> frame lengths whose last beat is the one that does or does not reach it
+WINDOW_EDGES = {6: (6 + 3, 6 + 4), 12: (9, 10)}
 
 
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
-def test_verilator_window_within_two_beats(tmp_path, traffic_name):
-    """Frames of every length from W + 2P up through a build of :data:`WINDOW_LANES` lanes,
-    bit-exact: a beat that needs the threshold and goes without it gives another result. (One
-    that waits for a threshold it does not need gives the same, a few clocks later: the
-    two-beat frames come back to back, each behind the result before it, so no latency of
-    theirs is their own to check.)"""
+@pytest.mark.parametrize("lanes", sorted(WINDOW_EDGES))
+def test_verilator_window_within_two_beats(tmp_path, lanes, traffic_name):
+    """Frames of every length from W + 2P up, bit-exact: a beat that needs the threshold and
+    goes without it gives another result. (One that waits for a threshold it does not need
+    gives the same, a few clocks later: the short frames come back to back, each behind the
+    result before it, so no latency of theirs is their own to check.)"""
     L, cfg = WINDOW_IN_TWO_BEATS
-    lanes = WINDOW_LANES
     ys, ks = lane_frames(L, cfg, lanes, np.random.default_rng(11))
-    assert {len(y) for y in ys} >= {lanes + 3, lanes + 4}  # second beats of 3 and 4 samples
+    assert {len(y) for y in ys} >= set(WINDOW_EDGES[lanes])
     fr = Frames(L, cfg, ys, ks)
     source, sink = TRAFFIC[traffic_name]
     res = run(Design(PeakDetect, lanes=lanes), tmp_path,
