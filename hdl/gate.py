@@ -83,7 +83,7 @@ class Gate(wiring.Component):
         Header FIFO entries, i.e. frames that can wait for the consumer at once. A header is
         counted from its admission until it is taken, 6 clocks at the least, so back-to-back
         1-sample frames need 6 or more even with a consumer always ready.
-    fine_start, coarse_start, shot_start : int
+    fine_start, coarse_start, shot_start, dropped_start : int
         Reset values of the counters, for tests only: they let a bench reach the 2^24 and 2^16
         limits in a few clocks. A ``fine_start`` of ``f`` is the state ``f * fine_div`` clocks
         after a line sync. Production builds leave them at 0, as the specification says.
@@ -108,8 +108,11 @@ class Gate(wiring.Component):
     bank_id : In(8)
         Coefficient-bank commit count, written into the header.
     dropped : Out(DROP_BITS)
-        Frames dropped for lack of room, saturating at ``2^DROP_BITS - 1``; a frame is
-        counted 2 clocks after its first sample entered.
+        Frames dropped for lack of room, modulo ``2^DROP_BITS``; a frame is counted 2 clocks
+        after its first sample entered. It moves by one at a time, so a consumer can count
+        its steps into a wider count (:class:`hdl.pipeline.Pipeline` does, into its 32-bit
+        ``frames_dropped`` and ``shots``; saturating, as it was until the fortieth session,
+        it stopped them after 65 535 drops).
 
     Notes
     -----
@@ -131,13 +134,14 @@ class Gate(wiring.Component):
     """
 
     def __init__(self, depth: int = 4096, header_depth: int = 16, *, fine_start: int = 0,
-                 coarse_start: int = 0, shot_start: int = 0):
+                 coarse_start: int = 0, shot_start: int = 0, dropped_start: int = 0):
         try:
             self.depth = _check("depth", depth, 1, 1 << 16)
             self.header_depth = _check("header_depth", header_depth, 1, 1 << 12)
             self.fine_start = _check("fine_start", fine_start, 0, _FINE_MAX)
             self.coarse_start = _check("coarse_start", coarse_start, 0, (1 << COARSE_BITS) - 1)
             self.shot_start = _check("shot_start", shot_start, 0, (1 << SHOT_BITS) - 1)
+            self.dropped_start = _check("dropped_start", dropped_start, 0, (1 << DROP_BITS) - 1)
         except ValueError:
             # A refused component was never meant to be used: keep Amaranth from warning
             # later (at garbage collection) that it was "created but never used".
@@ -149,7 +153,7 @@ class Gate(wiring.Component):
             "header": Out(stream.Signature(FRAME_HEADER_LAYOUT)),
             "cfg": In(config_signature("gate")),
             "bank_id": In(FRAME_HEADER["bank_id"].bits),
-            "dropped": Out(DROP_BITS),
+            "dropped": Out(DROP_BITS, init=self.dropped_start),
         })
 
     def elaborate(self, platform):
@@ -406,8 +410,8 @@ class Gate(wiring.Component):
         # The refused frames, counted a clock after the decision, off its paths.
         drop = Signal()
         m.d.sync += drop.eq(first_q & ~admit)
-        with m.If(drop & (self.dropped != (1 << DROP_BITS) - 1)):
-            m.d.sync += self.dropped.eq(self.dropped + 1)
+        with m.If(drop):
+            m.d.sync += self.dropped.eq(self.dropped + 1)  # modulo 2^DROP_BITS
         # left1's next value is a borrow of a decrement (a signed result), not a compare;
         # wait0's is a flag, made a step ahead (`wait1`: wait_m1 == 0).
         left_dec2 = left_m1 - 2  # left_m1 >= 1 on a kept sample that is not the last

@@ -352,8 +352,9 @@ class Pipeline(wiring.Component):
 
         # ---- counters ----
         gate_drops = Signal(COUNT_BITS)
-        # `dropped` moves by one at most per clock, then saturates: a step is a toggle of its
-        # low bit (a compare of the whole count was a LUT tree in front of a 32-bit enable)
+        # `dropped` moves by one at most per clock, modulo 2^16: a step is a toggle of its low
+        # bit (a compare of the whole count was a LUT tree in front of a 32-bit enable). (The
+        # gate's count saturated until the fortieth session, and this one stopped with it.)
         prev = Signal()
         m.d.sync += prev.eq(gate.dropped[0])
         with m.If(gate.dropped[0] != prev):

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from hdl.gate import HEADER_LATENCY, LATENCY, Gate
+from hdl.gate import DROP_BITS, HEADER_LATENCY, LATENCY, Gate
 from hdl.layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT
 from hdl.tb.amsim import simulate
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
@@ -281,6 +281,14 @@ class TestAmaranthSim:
         assert len(res.sinks["o"]["x"]) == 0  # the consumer never took anything
         assert res.watch["dropped"] == 5 - len(admitted)
         assert res.sources["i"]["stalls"] == 0
+
+    def test_dropped_wraps(self):
+        """The count of drops goes on past 2^16 - 1 (modulo 2^16), so that the pipeline,
+        which counts its steps into 32 bits, misses none (saturating, it stopped them)."""
+        sc = Scenario([Segment(cfg(gate_len=9), 60, triggers=[0, 12, 24, 36, 48])])
+        gate = Gate(depth=8, header_depth=4, dropped_start=(1 << DROP_BITS) - 2)
+        res = simulate(gate, **sc.traffic(PLAIN, Pattern("never")), max_clocks=200)
+        assert res.watch["dropped"] == 3  # 65 534 + 5 drops
 
     @pytest.mark.parametrize("header_depth", [HEADERS_IN_FLIGHT - 1, HEADERS_IN_FLIGHT])
     def test_header_depth_bound(self, header_depth):
