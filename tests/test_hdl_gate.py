@@ -229,8 +229,9 @@ SCENARIOS = {
 # Quick tests in Amaranth's simulator
 
 class TestAmaranthSim:
-    def test_corners_all_traffic(self):
-        sc = Scenario(corners(fine_div=3), seed=5)
+    @pytest.mark.parametrize("fine_div", [2, 3])  # 2: a period's tick on its second step
+    def test_corners_all_traffic(self, fine_div):
+        sc = Scenario(corners(fine_div=fine_div), seed=5)
         for source, sink in TRAFFIC.values():
             check(simulate(Gate(**SMALL), **sc.traffic(source, sink)), sc)
 
