@@ -235,12 +235,8 @@ def test_verilator_window_within_two_beats(tmp_path, lanes, traffic_name):
     ys, ks = lane_frames(L, cfg, lanes, np.random.default_rng(11))
     assert {len(y) for y in ys} >= set(WINDOW_EDGES[lanes])
     fr = Frames(L, cfg, ys, ks)
-    source, sink = TRAFFIC[traffic_name]
-    res = run(Design(PeakDetect, lanes=lanes), tmp_path,
-              sources={"i": lane_source(fr.ys, fr.ks, lanes, source)},
-              sinks={"o": Sink(PEAK_RESULT, sink), "surface": Sink(SURFACE, PLAIN)},
-              static={**cfg_ports(cfg, "peak"), "taps": L},
-              label=f"peak_detect_l{lanes}_window-{traffic_name}")
+    st = SimpleNamespace(ys=fr.ys, ks=fr.ks, group=[fr] * len(fr.ys), changes=[])
+    res = run_stream(tmp_path, st, lanes, 0, traffic_name)
     assert not res.timeout and res.violations == {"o": 0, "surface": 0}
     results = fr.results()
     check_results(res.sinks["o"], results)
