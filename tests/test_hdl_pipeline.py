@@ -109,27 +109,70 @@ def test_frames(tmp_path, scene, ftype, sink_name):
         assert all(f[3] & 0x0C == 0x0C for f in ref), "the scene has a surface and a bottom"
 
 
-def test_held_frames_take_the_bank_id_they_enter_with(tmp_path, scene):
+@pytest.mark.parametrize("gate_len", [None, 8, 1], ids=["scene", "gate8", "gate1"])
+def test_held_frames_take_the_bank_id_they_enter_with(tmp_path, scene, gate_len):
     """``bank_busy`` holds frames 1 and 2 at the filter's door while the packetizer waits for
     a header; it drops, with a new ``bank_id``, as frame 3 is triggered. A header goes to the
     packetizer only once its frame is inside, so every held frame carries the new id, as the
     frames of a bank committed while they waited use the new bank. (The count of frames
-    inside waiting for their headers does not reach two here.)"""
+    inside waiting for their headers does not reach two here.)
+
+    With the scene's gate a frame's header comes long after its frame entered; with short
+    gates it is waiting when the frame enters and is taken on the next clock, the one step
+    where the count goes 0 -> 1 -> 0 on consecutive clocks (and "a header may go" must fall
+    again before frame 1's header is complete)."""
     src, bank, cfg = scene
-    cfg = cfg.replace(frame_type=FrameType.PEAKS)
+    cfg = cfg.replace(frame_type=FrameType.PEAKS, gate_len=gate_len or cfg.gate_len)
     n, prf = 4, prf_for(FrameType.PEAKS, cfg.gate_len)
     assert 3 * cfg.gate_len <= 4096, "the gate's FIFO must hold the held frames"
     # (frame 0 has long passed the hold when the busy rises, a clock before frame 1's trigger)
     changes = [(prf - 1, "bank_busy", 1),
                (3 * prf, "bank_busy", 0), (3 * prf, "bank_id", BANK_ID + 1)]
     res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, n, prf, PLAIN,
-                       "pipeline-bank-busy", changes=changes,
+                       f"pipeline-bank-busy-{cfg.gate_len}", changes=changes,
                        watch=("frames_sent", "frames_dropped", "frame_idle"))
     assert not res.timeout and res.violations == {"o": 0}
     got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
     old, new = (reference_frames(src, cfg, bank, 0, n, prf, bank_id=b)
                 for b in (BANK_ID, BANK_ID + 1))
     want = [old[0], *new[1:]]
+    assert len(got) == n
+    for seq, (g, frame) in enumerate(zip(got, want, strict=True)):
+        assert g == encode_packet(PacketType.FRAME, seq, frame), f"packet {seq} differs"
+    assert res.watch == {"frames_sent": n, "frames_dropped": 0, "frame_idle": 1}
+
+
+@pytest.mark.parametrize("gate_len", [8, 1])
+def test_a_header_waits_for_its_frame_after_one_taken_as_its_frame_entered(tmp_path, scene,
+                                                                            gate_len):
+    """Short gates, a trigger period past the bank's load (512 words, a word a clock).
+    ``bank_busy`` holds frame 1 at the filter's door; it drops with a new ``bank_id`` as frame
+    2 is triggered and rises again while frame 2's first sample is on its way, so that frame 2
+    waits until frame 3's trigger, where it drops with a third id.
+
+    Frame 1's header (frame 0's, with a gate of one sample) is complete and waiting when its
+    frame enters, and is taken on the next clock: the count of frames waiting for their
+    headers goes 0 -> 1 -> 0 on consecutive clocks. Frame 2's header is complete, and the
+    packetizer free, long before frame 2 enters; "a header may go" must be low in between, or
+    frame 2 carries the second id where the third is due."""
+    src, bank, cfg = scene
+    cfg = cfg.replace(frame_type=FrameType.PEAKS, gate_len=gate_len)
+    n, prf = 4, 600
+    assert prf > prf_for(FrameType.PEAKS, gate_len) + 8
+    # frame 1 passes the hold 4 clocks after the beat of the drop, frame 2's first sample
+    # some 19 clocks after its trigger (the trigger -> entry latency of frame 0 here)
+    changes = [(prf - 1, "bank_busy", 1),
+               (2 * prf, "bank_busy", 0), (2 * prf, "bank_id", BANK_ID + 1),
+               (2 * prf + 8, "bank_busy", 1),
+               (3 * prf, "bank_busy", 0), (3 * prf, "bank_id", BANK_ID + 2)]
+    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, n, prf, PLAIN,
+                       f"pipeline-bank-busy-twice-{gate_len}", changes=changes,
+                       watch=("frames_sent", "frames_dropped", "frame_idle"))
+    assert not res.timeout and res.violations == {"o": 0}
+    got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
+    ids = [BANK_ID, BANK_ID + 1, BANK_ID + 2, BANK_ID + 2]
+    want = [reference_frames(src, cfg, bank, 0, n, prf, bank_id=b)[k]
+            for k, b in enumerate(ids)]
     assert len(got) == n
     for seq, (g, frame) in enumerate(zip(got, want, strict=True)):
         assert g == encode_packet(PacketType.FRAME, seq, frame), f"packet {seq} differs"
