@@ -3,7 +3,7 @@
 The twin rule: the same gated codes go through the model chain (``run_chain``), whose headers
 (``gate_events``), samples and peak results drive the packetizer, and whose frames
 (``encode_batch``) wrapped by ``encode_packet(FRAME, seq, ...)`` are the expected bytes. Frames
-of 1, 2 and 3 samples, echo frames with surfaces and bottoms (flags, peak records) and seeded
+of 1 to 8 samples, echo frames with surfaces and bottoms (flags, peak records) and seeded
 random codes at the rails, all four frame types, plain, with idle insertion and with
 backpressure. Whole-packet admission is checked exactly against a blocked consumer. One
 Verilator build (a small FIFO and buffer; the production sizes are the pipeline's).
@@ -27,7 +27,7 @@ from model.layouts import PEAK_RECORD, FrameType
 from model.link import CRC_BYTES, PacketType, encode_packet, packet_size
 from model.registers import Config
 
-# the FIFO holds every packet of a traffic test (18 164 bytes at most), so only the
+# the FIFO holds every packet of a traffic test (18 424 bytes at most), so only the
 # admission test, with more, drops
 CAPACITY, MAX_SAMPLES = 20000, 768
 DESIGN = Design(FramePacketizer, capacity=CAPACITY, max_samples=MAX_SAMPLES)
@@ -87,7 +87,8 @@ def frames_of(ftype: int) -> Frames:
     rng = np.random.default_rng(100 + ftype)
     cfg = Config(frame_type=ftype, noise_log2=4, bottom_rule=2, out_shift=12, min_sep=8)
     f = Frames()
-    for n in (1, 2, 3):
+    # every length the small-length flags tell apart (`len_hi0`: below 4; its two low bits)
+    for n in (1, 2, 3, 4, 5, 6, 7, 8):
         f.add(rng.integers(0, 256, (1, 3, n), dtype=np.uint8), cfg, shot0=len(f.frames))
     f.add(synthetic_codes(4, 700, seed=ftype), cfg, shot0=len(f.frames))
     rails = rng.choice(np.array([0, 1, 254, 255], np.uint8), (2, 3, 61))
@@ -132,20 +133,27 @@ def test_packets(tmp_path, ftype, traffic_name):
             first = e + 1
 
 
-def test_room_comes_back(tmp_path):
-    """A FIFO that holds the largest packet and no more, an always-ready consumer: every
-    packet goes out, none is dropped, though together they are many times the capacity (the
-    room counts the bytes sent back in; the largest packet fits the drained FIFO exactly)."""
+@pytest.mark.parametrize("spare", [0, -1])
+def test_room_comes_back(tmp_path, spare):
+    """A FIFO that holds the largest packet and no more (``spare`` 0), an always-ready
+    consumer: every packet goes out, none is dropped, though together they are many times the
+    capacity (the room counts the bytes sent back in; the largest packet fits the drained FIFO
+    exactly). One byte less (``spare`` -1): the largest packets are dropped, every other one
+    goes out (an admission one byte too generous lets them in, over the FIFO's end)."""
     f = frames_of(FrameType.FILTERED)
-    capacity = max(packet_size(len(fr)) for fr in f.frames)
-    assert sum(packet_size(len(fr)) for fr in f.frames) > 4 * capacity
+    sizes = [packet_size(len(fr)) for fr in f.frames]
+    capacity = max(sizes) + spare
+    assert sum(sizes) > 4 * capacity
+    admitted = [i for i, size in enumerate(sizes) if size <= capacity]
+    assert len(admitted) == len(sizes) + min(spare, 0) * sizes.count(max(sizes)) > 0
     design = Design(FramePacketizer, capacity=capacity, max_samples=MAX_SAMPLES)
     source, sink = TRAFFIC["plain"]
     res = run(design, tmp_path, sources=f.sources(source), sinks={"o": Sink(BYTE, sink)},
               watch=("frames_sent", "frames_dropped", "fifo_level"))
     assert not res.timeout and res.violations == {"o": 0}
-    assert _bytes(res)[0] == f.packets()
-    assert res.watch == {"frames_sent": len(f.frames), "frames_dropped": 0, "fifo_level": 0}
+    assert _bytes(res)[0] == f.packets(admitted)
+    assert res.watch == {"frames_sent": len(admitted),
+                         "frames_dropped": len(sizes) - len(admitted), "fifo_level": 0}
 
 
 def test_whole_packet_admission(tmp_path):
