@@ -26,9 +26,10 @@ __all__ = ["RAM_DELAY_MIN", "OneHotFSM", "RegisterSlice", "_Store", "_delay", "_
 
 
 #: Entries of the output buffer of a :class:`_Store` read free (``free_read``), counting those
-#: in flight to it: the three stages from the memory and one, the fewest that sustain one
-#: entry per clock (three do not: ``tests/test_hdl_bram.py``).
-READ_BUFFER = 4
+#: in flight to it: the three stages from the memory and two, the fewest that sustain one
+#: entry per clock with its admission (``room``) decided a clock ahead (four do not:
+#: ``tests/test_hdl_bram.py``). The buffer's LUT RAM holds 8 entries for 5 as for 4.
+READ_BUFFER = 5
 
 
 def _le(a, b):
@@ -404,11 +405,16 @@ class _Store(wiring.Component):
         # left: `n1` counts the leaves a clock late (`left`, the last clock's leave), so that
         # `r.ready` reaches no enable of the count: r.ready -> the leave -> the count's enables
         # was the one-lane pipeline's worst path on seed 2 (the gate store's, 5.8 ns, most of
-        # it routing, thirty-eighth session). `room` reads the count as it is, the leave of
-        # this clock in its last LUT.
+        # it routing, thirty-eighth session). `room` is decided a clock ahead, from the count
+        # as it is (n1 - left <= READ_BUFFER - 2: with this clock's take the count is then at
+        # most READ_BUFFER - 1 when `room` lets the next one go), one LUT from registers. As
+        # the count after this clock's take and leave (n1 + take - left <= READ_BUFFER - 1,
+        # the leave in its last LUT) it was four LUTs from `ne` through `take`: the gate
+        # store's `ne` -> `room` was the one-lane pipeline's worst path on seed 2 (6.12 ns,
+        # 4.63 of it routing, forty-first session). It costs the buffer one entry more.
         n1 = Signal(range(READ_BUFFER + 2))
         left = Signal()
-        room = Signal(init=1)  # n1 - left <= READ_BUFFER - 1
+        room = Signal(init=1)  # n1 - left <= READ_BUFFER - 2 a clock ago
         take, take_c = ne & room, ~empty & room
         m.d.comb += [ram.r_en.eq(1), ram.r_oce.eq(1)]
         # take's entry: in the block's latch a clock later, its output register two, the
@@ -418,14 +424,8 @@ class _Store(wiring.Component):
         _output_buffer(m, self.r, READ_BUFFER, word, valid[3])
         leave = self.r.valid & self.r.ready
 
-        # n1 + take - left (the count after this clock's take, before its leave) at most
-        # READ_BUFFER - 1 (`below`) or equal to READ_BUFFER (`full`), each case a compare of
-        # the register with a constant
-        up, down = take & ~left, left & ~take
-        below = Mux(up, n1 <= READ_BUFFER - 2, Mux(down, n1 <= READ_BUFFER, n1 <= READ_BUFFER - 1))
-        full = Mux(up, n1 == READ_BUFFER - 1, Mux(down, n1 == READ_BUFFER + 1, n1 == READ_BUFFER))
         m.d.sync += [n1.eq(_step(n1, take, left)), left.eq(leave),
-                     room.eq(below | (full & leave))]
+                     room.eq(Mux(left, n1 <= READ_BUFFER - 1, n1 <= READ_BUFFER - 2))]
         return take, take_c, ~empty & ~room
 
 

@@ -698,7 +698,6 @@ class MatchedFilter(wiring.Component):
         ks = self.templates
         two_plus = _reg(m, ks >= 2, 1, "two_plus", True)
         up_tp = _reg(m, Mux(ks >= 3, 2, ks >= 2), _K_SHAPE, "up_tp", True)
-        tp_top = _reg(m, ks <= 2, 1, "tp_top", True)  # min(1, K - 1) = K - 1
         uptp_top = _reg(m, ks <= 3, 1, "uptp_top", True)  # min(2, K - 1) = K - 1
         k_m2 = _reg(m, ks - 2, _K_SHAPE, "k_m2", True)  # k_up + 1 = K - 1 (read for K >= 4)
         k_up, up_top = Signal(_K_SHAPE, name="k_up"), Signal(name="up_top")
@@ -712,22 +711,23 @@ class MatchedFilter(wiring.Component):
             m.d.comb += k_sel.eq(k_up)
         with m.Else():
             m.d.comb += k_sel.eq(k)
-        # At an accepted sample: the values after a frame's first sample (registers), else
-        # those after any other (chosen by registers alone), and the port's `first` chooses;
-        # `accept` goes into the registers' enable alone. As a choice in the enable, the port's
-        # `first` -> three LUTs -> `k_up`'s reset was the whole device's worst path on seed 1
-        # (7.38 ns, 5.72 of it routing) and the filter alone's on seed 2 (5.68 ns),
-        # thirty-eighth session. Below the top k_up is at most K - 2 (a load sets up_top for a
-        # value at K - 1, and a step stops there), so k_up == K - 2 is k_up >= K - 2, a carry
-        # chain's sign where the equality was two LUT levels before the choice. (The values
-        # a first sample loads are not read: the frame's match loads both before any switch
-        # reads them, so a mutation of them passes the tests.)
+        # At an accepted sample, `k_up` and `up_top` step as for any sample, a frame's first
+        # included: no switch reads them before the frame's match loads both (`active`
+        # follows `match`, the register floor of `bin_offset`), so what a first sample leaves
+        # there is never read, and the port's `first` need not reach them. (Loaded with the
+        # frame-start values by `first`, Yosys made "accept and first" their reset: the
+        # filter's `full` -> two LUTs -> `k_up`'s reset was the whole device's worst path on
+        # seed 2, 7.21 ns, 5.79 of it routing, forty-first session; as a choice in the enable,
+        # `first` -> three LUTs -> `k_up`'s reset was its worst path on seed 1 of the
+        # thirty-eighth, 7.38 ns.) `accept` goes into the registers' enable alone. Below the
+        # top k_up is at most K - 2 (a load sets up_top for a value at K - 1, and a step stops
+        # there), so k_up == K - 2 is k_up >= K - 2, a carry chain's sign where the equality
+        # was two LUT levels before the choice.
         steps = switch & ~up_top
         k_up_nf = Mux(match, up_tp, Mux(steps, k_up + 1, k_up))
         up_top_nf = Mux(match, uptp_top, Mux(steps, _le(k_m2, k_up), up_top))
         with m.If(accept):
-            m.d.sync += [k_up.eq(Mux(d.first, two_plus, k_up_nf)),
-                         up_top.eq(Mux(d.first, tp_top, up_top_nf))]
+            m.d.sync += [k_up.eq(k_up_nf), up_top.eq(up_top_nf)]
 
         with m.If(accept):
             m.d.sync += [n.eq(Mux(d.first, 1, n1)), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel)]
