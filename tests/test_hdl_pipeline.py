@@ -109,6 +109,24 @@ def test_frames(tmp_path, scene, ftype, sink_name):
         assert all(f[3] & 0x0C == 0x0C for f in ref), "the scene has a surface and a bottom"
 
 
+def check_bank_ids(tmp_path, scene, cfg, prf, changes, ids, label):
+    """The pipeline on ``len(ids)`` shots of the scene with ``changes`` (``bank_busy`` and
+    ``bank_id`` writes): every packet is the model's frame stamped with its ``ids`` entry, in
+    order, none dropped, and the pipeline idle at the end."""
+    src, bank, _ = scene
+    n = len(ids)
+    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, n, prf, PLAIN, label,
+                       changes=changes, watch=("frames_sent", "frames_dropped", "frame_idle"))
+    assert not res.timeout and res.violations == {"o": 0}
+    got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
+    ref = {b: reference_frames(src, cfg, bank, 0, n, prf, bank_id=b) for b in set(ids)}
+    want = [ref[b][k] for k, b in enumerate(ids)]
+    assert len(got) == n
+    for seq, (g, frame) in enumerate(zip(got, want, strict=True)):
+        assert g == encode_packet(PacketType.FRAME, seq, frame), f"packet {seq} differs"
+    assert res.watch == {"frames_sent": n, "frames_dropped": 0, "frame_idle": 1}
+
+
 @pytest.mark.parametrize("gate_len", [None, 8, 1], ids=["scene", "gate8", "gate1"])
 def test_held_frames_take_the_bank_id_they_enter_with(tmp_path, scene, gate_len):
     """``bank_busy`` holds frames 1 and 2 at the filter's door while the packetizer waits for
@@ -121,25 +139,15 @@ def test_held_frames_take_the_bank_id_they_enter_with(tmp_path, scene, gate_len)
     gates it is waiting when the frame enters and is taken on the next clock, the one step
     where the count goes 0 -> 1 -> 0 on consecutive clocks (and "a header may go" must fall
     again before frame 1's header is complete)."""
-    src, bank, cfg = scene
-    cfg = cfg.replace(frame_type=FrameType.PEAKS, gate_len=gate_len or cfg.gate_len)
-    n, prf = 4, prf_for(FrameType.PEAKS, cfg.gate_len)
+    cfg = scene[2].replace(frame_type=FrameType.PEAKS, gate_len=gate_len or scene[2].gate_len)
+    prf = prf_for(FrameType.PEAKS, cfg.gate_len)
     assert 3 * cfg.gate_len <= 4096, "the gate's FIFO must hold the held frames"
     # (frame 0 has long passed the hold when the busy rises, a clock before frame 1's trigger)
     changes = [(prf - 1, "bank_busy", 1),
                (3 * prf, "bank_busy", 0), (3 * prf, "bank_id", BANK_ID + 1)]
-    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, n, prf, PLAIN,
-                       f"pipeline-bank-busy-{cfg.gate_len}", changes=changes,
-                       watch=("frames_sent", "frames_dropped", "frame_idle"))
-    assert not res.timeout and res.violations == {"o": 0}
-    got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
-    old, new = (reference_frames(src, cfg, bank, 0, n, prf, bank_id=b)
-                for b in (BANK_ID, BANK_ID + 1))
-    want = [old[0], *new[1:]]
-    assert len(got) == n
-    for seq, (g, frame) in enumerate(zip(got, want, strict=True)):
-        assert g == encode_packet(PacketType.FRAME, seq, frame), f"packet {seq} differs"
-    assert res.watch == {"frames_sent": n, "frames_dropped": 0, "frame_idle": 1}
+    check_bank_ids(tmp_path, scene, cfg, prf, changes,
+                   [BANK_ID, BANK_ID + 1, BANK_ID + 1, BANK_ID + 1],
+                   f"pipeline-bank-busy-{cfg.gate_len}")
 
 
 @pytest.mark.parametrize("gate_len", [8, 1])
@@ -155,9 +163,8 @@ def test_a_header_waits_for_its_frame_after_one_taken_as_its_frame_entered(tmp_p
     headers goes 0 -> 1 -> 0 on consecutive clocks. Frame 2's header is complete, and the
     packetizer free, long before frame 2 enters; "a header may go" must be low in between, or
     frame 2 carries the second id where the third is due."""
-    src, bank, cfg = scene
-    cfg = cfg.replace(frame_type=FrameType.PEAKS, gate_len=gate_len)
-    n, prf = 4, 600
+    cfg = scene[2].replace(frame_type=FrameType.PEAKS, gate_len=gate_len)
+    prf = 600
     assert prf > prf_for(FrameType.PEAKS, gate_len) + 8
     # frame 1 passes the hold 4 clocks after the beat of the drop, frame 2's first sample
     # some 19 clocks after its trigger (the trigger -> entry latency of frame 0 here)
@@ -165,18 +172,9 @@ def test_a_header_waits_for_its_frame_after_one_taken_as_its_frame_entered(tmp_p
                (2 * prf, "bank_busy", 0), (2 * prf, "bank_id", BANK_ID + 1),
                (2 * prf + 8, "bank_busy", 1),
                (3 * prf, "bank_busy", 0), (3 * prf, "bank_id", BANK_ID + 2)]
-    res = run_pipeline(tmp_path, Design(Pipeline), src, bank, cfg, n, prf, PLAIN,
-                       f"pipeline-bank-busy-twice-{gate_len}", changes=changes,
-                       watch=("frames_sent", "frames_dropped", "frame_idle"))
-    assert not res.timeout and res.violations == {"o": 0}
-    got = packets(bytes(res.sinks["o"]["data"].astype(np.uint8).tolist()))
-    ids = [BANK_ID, BANK_ID + 1, BANK_ID + 2, BANK_ID + 2]
-    want = [reference_frames(src, cfg, bank, 0, n, prf, bank_id=b)[k]
-            for k, b in enumerate(ids)]
-    assert len(got) == n
-    for seq, (g, frame) in enumerate(zip(got, want, strict=True)):
-        assert g == encode_packet(PacketType.FRAME, seq, frame), f"packet {seq} differs"
-    assert res.watch == {"frames_sent": n, "frames_dropped": 0, "frame_idle": 1}
+    check_bank_ids(tmp_path, scene, cfg, prf, changes,
+                   [BANK_ID, BANK_ID + 1, BANK_ID + 2, BANK_ID + 2],
+                   f"pipeline-bank-busy-twice-{gate_len}")
 
 
 @pytest.mark.parametrize("stop", [200, 500])
