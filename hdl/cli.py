@@ -152,7 +152,8 @@ def register(subparsers) -> None:
     syn.add_argument("--placer", choices=PLACERS, default="heap",
                      help="nextpnr's placer (static: shorter wires on the many-engine builds)")
     syn.add_argument("--seed", type=int, default=1,
-                     help="nextpnr's random seed (fmax spreads by some 5 %% between seeds)")
+                     help="nextpnr's random seed (one netlist's fmax spreads by up to 15 %% "
+                          "between seeds)")
 
     syn.add_argument("--context", choices=CONTEXTS, default="out",
                      help="out: the component alone, out of context (its clock on fabric "

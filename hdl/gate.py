@@ -275,7 +275,7 @@ class Gate(wiring.Component):
         # inside `step` as the counters above are, the reset was legalized as "reset and
         # enabled", its LSR a LUT behind the enable's logic: four LUTs from `line_sync` to the
         # reset of `fine` or `top1`, the one-lane pipeline's worst path on five placements of
-        # six (thirty-third session, docs/fpga.md).
+        # six (thirty-third session, docs/fpga-history.md).
         with m.If(step & sync):
             # fine restarts at 0, or 1 on a tick
             m.d.sync += [fine.eq(div_le1), fine1.eq(div_le1 + 1), fine_top.eq(0), top1.eq(0),

@@ -34,8 +34,8 @@ from amaranth.hdl import Elaboratable, Signal
 from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
 from ._levels import deepest_path, logic_levels
 
-__all__ = ["DEVICE", "ECP5_SYNTH", "figure_key", "levels", "record_figures", "synth_all",
-           "synth_components", "synthesize"]
+__all__ = ["DEVICE", "ECP5_SYNTH", "failing_endpoints", "figure_key", "levels",
+           "record_figures", "synth_all", "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
@@ -306,8 +306,10 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     Returns
     -------
     dict
-        ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds``, the parameters and
-        ``worst_path`` (:func:`worst_path`: the path that holds ``fmax_mhz``).
+        ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds``, the parameters,
+        ``worst_path`` (:func:`worst_path`: the path that holds ``fmax_mhz``) and
+        ``failing`` (:func:`failing_endpoints`: every endpoint that misses ``target_mhz``,
+        by register).
     """
     if router not in ROUTERS:
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
@@ -346,6 +348,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
               DEVICE["package"], "--json", f"{name}.json", "--freq", str(target_mhz),
               *placement, "--timing-allow-fail", "--seed", str(seed),
               "--placer", placer, "--router", router, "--report", "report.json",
+              # every endpoint's arrival, for `failing` (the critical path is one of them)
+              "--detailed-timing-report",
               # (the log as it runs: a long place-and-route can be watched in work_dir)
               "--log", "nextpnr.log"], wd, f"nextpnr-ecp5 on {name}")
         report = json.loads((wd / "report.json").read_text())
@@ -374,6 +378,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         **({"static": static} if context == "in" else {}),
         **({"floorplan": floorplan, "pinned": len(pinned)} if floorplan is not None else {}),
         "worst_path": worst_path(report),
+        "failing": failing_endpoints(report, 1000.0 / target_mhz),
         "seconds": round(time.perf_counter() - t0, 1),
     }
 
@@ -465,6 +470,60 @@ def worst_path(report: dict) -> dict | None:
             "logic_steps": sum(st["type"] == "logic" for st in steps)}
 
 
+def failing_endpoints(report: dict, period_ns: float, worst: int = 8) -> dict | None:
+    """The timing endpoints that miss the clock, counted and grouped by register.
+
+    One worst path names one register; a design that misses its clock by a few hundred
+    picoseconds may miss it at one endpoint or at hundreds, across every stage, and only the
+    count says which (a change that removes the worst path of the first kind gains the
+    clock, of the second kind it moves the worst path elsewhere). nextpnr's
+    ``--detailed-timing-report`` gives every endpoint's arrival time (ns after the launching
+    edge, the longest path into it); its slack here is ``period_ns`` minus that arrival.
+    nextpnr's ECP5 model gives a fabric flip-flop's inputs no setup time, so for those the
+    slack is nextpnr's own (the worst endpoint's is minus the worst path's excess); a hard
+    block's setup time is not subtracted, so its inputs count a little optimistically. An
+    endpoint reached from several launches counts once, at its latest arrival.
+
+    Parameters
+    ----------
+    report : dict
+        nextpnr's ``--report`` JSON, written with ``--detailed-timing-report``.
+    period_ns : float
+        The clock period the slack is taken against, ns (``1000 / target_mhz``).
+    worst : int
+        How many registers to list.
+
+    Returns
+    -------
+    dict or None
+        ``endpoints``: how many endpoints (one per flip-flop, block or LUT RAM input port) have
+        negative slack; ``registers``: how many registers (cells without the suffixes Yosys and
+        nextpnr add, :func:`_cell`) they belong to; ``worst``: up to ``worst`` of those
+        registers, the most negative first, each ``{"register", "slack_ns", "endpoints"}``.
+        None when the report has no detailed timing (nextpnr run without the option).
+    """
+    nets = report.get("detailed_net_timings")
+    if nets is None:
+        return None
+    arrival: dict[tuple[str, str], float] = {}
+    for net in nets:
+        for ep in net.get("endpoints", []):
+            d = ep["delay"]
+            d = max(d) if isinstance(d, list) else float(d)  # [min, max] in nextpnr 0.11
+            key = (ep["cell"], ep["port"])
+            arrival[key] = max(arrival.get(key, d), d)
+    by_register: dict[str, list[float]] = {}
+    for (cell, _port), d in arrival.items():
+        slack = period_ns - d
+        if slack < 0:
+            by_register.setdefault(_cell({"cell": cell}), []).append(slack)
+    ranked = sorted(by_register.items(), key=lambda kv: min(kv[1]))
+    return {"endpoints": sum(len(v) for v in by_register.values()),
+            "registers": len(by_register),
+            "worst": [{"register": reg, "slack_ns": round(min(v), 3), "endpoints": len(v)}
+                      for reg, v in ranked[:worst]]}
+
+
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int = 1, static: str = "pins", floorplan: str | None = None) -> dict:
@@ -539,3 +598,8 @@ def print_table(res: dict) -> None:
         if w:
             print(f"{'':>16} worst path {w['from']} -> {w['to']}: {w['ns']} ns, "
                   f"{w['routing_ns']} of it routing, {w['logic_steps']} logic steps")
+        f = r.get("failing")
+        if f and f["endpoints"]:
+            names = ", ".join(f"{x['register']} ({x['slack_ns']:+.2f})" for x in f["worst"][:4])
+            print(f"{'':>16} {f['endpoints']} endpoints below zero slack in {f['registers']} "
+                  f"registers: {names}")

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from firmware_host.cli import main
-from hdl.synth import DEVICE, figure_key, print_table, record_figures, synthesize
+from hdl.synth import DEVICE, failing_endpoints, figure_key, print_table, record_figures, synthesize
 
 
 class TestSynth:
@@ -24,6 +24,16 @@ class TestSynth:
         assert w["from"] and w["to"] and "TRELLIS" not in w["from"] + w["to"], w
         assert 0 < w["routing_ns"] < w["ns"] and w["logic_steps"] >= 1
         assert 1000 / w["ns"] == pytest.approx(r["fmax_mhz"], rel=0.05)
+        # every endpoint's arrival: against a clock 0.3 ns short of the worst path, the worst
+        # register is the path's end, at nextpnr's own -0.3 ns; against one just longer,
+        # nothing fails
+        report = json.loads((tmp_path / "report.json").read_text())
+        short = failing_endpoints(report, w["ns"] - 0.3)
+        assert short["worst"][0]["slack_ns"] == pytest.approx(-0.3, abs=0.01), short
+        assert short["worst"][0]["register"] == w["to"]
+        assert short["endpoints"] >= short["registers"] >= 1
+        assert failing_endpoints(report, w["ns"] + 0.01)["endpoints"] == 0
+        assert r["failing"] == failing_endpoints(report, 1000 / r["target_mhz"])
         print_table({"device": DEVICE, "components": {"albcap_stitch": r}})
         table = capsys.readouterr().out
         assert f"worst path {w['from']} -> {w['to']}: {w['ns']} ns" in table
@@ -159,6 +169,25 @@ class TestSynth:
                            "--static applies in context only: give --context in")):
             with pytest.raises(SystemExit, match=msg):
                 main(["hdl", "synth", *args])
+
+
+def test_failing_endpoints_counts_each_endpoint_once():
+    """An endpoint reached from two launches counts once, at its latest arrival; a
+    register's bits are one register; a report without detailed timing gives None."""
+    def ep(cell, port, delay):
+        return {"cell": cell, "port": port, "delay": delay, "event": "posedge clk"}
+    report = {"detailed_net_timings": [
+        {"net": "a", "endpoints": [ep("core.x_TRELLIS_FF_Q", "DI", [4.0, 5.5]),
+                                   ep("core.y_TRELLIS_FF_Q_3", "DI", [1.0, 5.2])]},
+        {"net": "b", "endpoints": [ep("core.x_TRELLIS_FF_Q", "DI", [4.0, 5.1]),
+                                   ep("core.y_TRELLIS_FF_Q_4", "CE", [1.0, 5.3]),
+                                   ep("core.z_TRELLIS_FF_Q", "DI", [1.0, 4.9])]}]}
+    f = failing_endpoints(report, 5.0)
+    assert f["endpoints"] == 3 and f["registers"] == 2
+    assert f["worst"] == [{"register": "core.x", "slack_ns": -0.5, "endpoints": 1},
+                          {"register": "core.y", "slack_ns": -0.3, "endpoints": 2}]
+    assert failing_endpoints(report, 5.0, worst=1)["worst"] == f["worst"][:1]
+    assert failing_endpoints({"critical_paths": []}, 5.0) is None
 
 
 def test_record_figures_merges_per_configuration(tmp_path):
