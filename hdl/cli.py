@@ -151,9 +151,10 @@ def register(subparsers) -> None:
 
     syn.add_argument("--placer", choices=PLACERS, default="heap",
                      help="nextpnr's placer (static: shorter wires on the many-engine builds)")
-    syn.add_argument("--seed", type=int, default=1,
-                     help="nextpnr's random seed (one netlist's fmax spreads by up to 15 %% "
-                          "between seeds)")
+    syn.add_argument("--seed", type=int, nargs="+", default=[1], metavar="SEED",
+                     help="nextpnr's random seed; several (--seed 1 2 3): each placed in turn "
+                          "and the lowest kept, with every seed's fmax (one netlist's fmax "
+                          "spreads by up to 15 %% between seeds)")
 
     syn.add_argument("--context", choices=CONTEXTS, default="out",
                      help="out: the component alone, out of context (its clock on fabric "

@@ -5,7 +5,15 @@ import json
 import pytest
 
 from firmware_host.cli import main
-from hdl.synth import DEVICE, failing_endpoints, figure_key, print_table, record_figures, synthesize
+from hdl.synth import (
+    DEVICE,
+    failing_endpoints,
+    figure_key,
+    print_table,
+    record_figures,
+    synth_all,
+    synthesize,
+)
 
 
 class TestSynth:
@@ -56,6 +64,19 @@ class TestSynth:
         assert res["components"]["albcap_stitch"]["seed"] == 7
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
             res["components"]["albcap_stitch"])
+
+    def test_several_seeds_keep_the_lowest(self, capsys):
+        """``--seed 1 2``: each seed placed, the lowest kept, every seed's fmax recorded."""
+        assert main(["hdl", "synth", "--json", "--component", "albcap_stitch",
+                     "--seed", "1", "2"]) == 0
+        r = json.loads(capsys.readouterr().out)["components"]["albcap_stitch"]
+        assert set(r["seeds"]) == {"1", "2"}
+        assert r["fmax_mhz"] == min(r["seeds"].values()) == r["seeds"][str(r["seed"])]
+        print_table({"device": DEVICE, "components": {"albcap_stitch": r}})
+        assert f"the lowest, seed {r['seed']}, shown" in capsys.readouterr().out
+        for bad in ([], [1, 1]):
+            with pytest.raises(ValueError, match=r"seeds must be one or more distinct"):
+                synth_all(["albcap_stitch"], seed=bad)
 
     def test_stitch_in_context(self, tmp_path):
         """In a shell of registers, placed in context: the clock on a global network (a
@@ -173,7 +194,8 @@ class TestSynth:
 
 def test_failing_endpoints_counts_each_endpoint_once():
     """An endpoint reached from two launches counts once, at its latest arrival; a
-    register's bits are one register; a report without detailed timing gives None."""
+    register's bits are one register; a pin's arrival does not count; a report without
+    detailed timing gives None."""
     def ep(cell, port, delay):
         return {"cell": cell, "port": port, "delay": delay, "event": "posedge clk"}
     report = {"detailed_net_timings": [
@@ -181,7 +203,10 @@ def test_failing_endpoints_counts_each_endpoint_once():
                                    ep("core.y_TRELLIS_FF_Q_3", "DI", [1.0, 5.2])]},
         {"net": "b", "endpoints": [ep("core.x_TRELLIS_FF_Q", "DI", [4.0, 5.1]),
                                    ep("core.y_TRELLIS_FF_Q_4", "CE", [1.0, 5.3]),
-                                   ep("core.z_TRELLIS_FF_Q", "DI", [1.0, 4.9])]}]}
+                                   ep("core.z_TRELLIS_FF_Q", "DI", [1.0, 4.9])]},
+        # from a pin, unconstrained: not timed against the clock
+        {"net": "pin", "event": "<async>",
+         "endpoints": [ep("cfg_x_TRELLIS_FF_Q", "M", [6.6, 6.6])]}]}
     f = failing_endpoints(report, 5.0)
     assert f["endpoints"] == 3 and f["registers"] == 2
     assert f["worst"] == [{"register": "core.x", "slack_ns": -0.5, "endpoints": 1},
