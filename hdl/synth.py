@@ -483,8 +483,8 @@ def failing_endpoints(report: dict, period_ns: float, worst: int = 8) -> dict | 
     nextpnr's ECP5 model gives a fabric flip-flop's inputs no setup time, so for those the
     slack is nextpnr's own (the worst endpoint's is minus the worst path's excess); a hard
     block's setup time is not subtracted, so its inputs count a little optimistically. An
-    endpoint reached from several launches counts once, at its latest arrival. Endpoints
-    launched from an unconstrained pin (``<async>``: the shell's serial inputs in context),
+    endpoint reached from several launches counts once, at its latest arrival. Paths from
+    or to an unconstrained pin (``<async>``: the shell's serial input and output in context),
     which nextpnr's fmax leaves out, are left out too (nextpnr's report names one launch per
     net, the first; a net of both kinds is rare and counts as its first).
 
@@ -514,6 +514,8 @@ def failing_endpoints(report: dict, period_ns: float, worst: int = 8) -> dict | 
         if net.get("event") == "<async>":
             continue
         for ep in net.get("endpoints", []):
+            if ep.get("event") == "<async>":  # captured at a pin: not timed either
+                continue
             d = ep["delay"]
             d = max(d) if isinstance(d, list) else float(d)  # [min, max] in nextpnr 0.11
             key = (ep["cell"], ep["port"])

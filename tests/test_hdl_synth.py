@@ -194,7 +194,7 @@ class TestSynth:
 
 def test_failing_endpoints_counts_each_endpoint_once():
     """An endpoint reached from two launches counts once, at its latest arrival; a
-    register's bits are one register; a pin's arrival does not count; a report without
+    register's bits are one register; a path from or to a pin does not count; a report without
     detailed timing gives None."""
     def ep(cell, port, delay):
         return {"cell": cell, "port": port, "delay": delay, "event": "posedge clk"}
@@ -206,7 +206,10 @@ def test_failing_endpoints_counts_each_endpoint_once():
                                    ep("core.z_TRELLIS_FF_Q", "DI", [1.0, 4.9])]},
         # from a pin, unconstrained: not timed against the clock
         {"net": "pin", "event": "<async>",
-         "endpoints": [ep("cfg_x_TRELLIS_FF_Q", "M", [6.6, 6.6])]}]}
+         "endpoints": [ep("cfg_x_TRELLIS_FF_Q", "M", [6.6, 6.6])]},
+        # to a pin, likewise
+        {"net": "out", "event": "posedge clk",
+         "endpoints": [{**ep("dout$tr_io", "I", [5.9, 5.9]), "event": "<async>"}]}]}
     f = failing_endpoints(report, 5.0)
     assert f["endpoints"] == 3 and f["registers"] == 2
     assert f["worst"] == [{"register": "core.x", "slack_ns": -0.5, "endpoints": 1},
