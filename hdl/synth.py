@@ -502,7 +502,8 @@ def worst_path(report: dict) -> dict | None:
             "logic_steps": sum(st["type"] == "logic" for st in steps)}
 
 
-def failing_endpoints(report: dict, period_ns: float, worst: int | None = 8) -> dict | None:
+def failing_endpoints(report: dict, period_ns: float,
+                      worst: int | None = FAILING_LISTED) -> dict | None:
     """The timing endpoints that miss the clock, counted and grouped by register.
 
     One worst path names one register; a design that misses its clock by a few hundred
@@ -600,8 +601,8 @@ def missing_on(missed: Sequence[set[str]], listed: int | None = None) -> list[di
 
     A register that misses on one seed of three was put far from its neighbours by that
     placement; one that misses on every seed misses by its logic, and only a change of the
-    design moves it (twenty placements of the one-lane pipeline, ``docs/fpga-history.md``,
-    "Every endpoint that misses the clock": three registers on all of them).
+    design moves it (eighteen placements of the one-lane pipeline, ``docs/fpga-history.md``,
+    "Every endpoint that misses the clock": three registers missed on all of them).
 
     Parameters
     ----------
