@@ -594,10 +594,10 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     return {"device": DEVICE, "components": components}
 
 
-def missing_on(missed: Sequence[set[str]], listed: int | None = None) -> list[dict]:
+def missing_on(missed: Sequence[set[str]], listed: int = MISSING_ON_LISTED) -> list[dict]:
     """The registers that miss the clock on more than one of several placements, and on how
     many: ``[{"register", "seeds"}]``, the most placements first (then by name), at most
-    ``listed`` (:data:`MISSING_ON_LISTED` by default).
+    ``listed``.
 
     A register that misses on one seed of three was put far from its neighbours by that
     placement; one that misses on every seed misses by its logic, and only a change of the
@@ -612,8 +612,7 @@ def missing_on(missed: Sequence[set[str]], listed: int | None = None) -> list[di
     """
     counts = Counter(r for regs in missed for r in regs)
     ranked = sorted((kv for kv in counts.items() if kv[1] > 1), key=lambda kv: (-kv[1], kv[0]))
-    return [{"register": r, "seeds": c}
-            for r, c in ranked[:MISSING_ON_LISTED if listed is None else listed]]
+    return [{"register": r, "seeds": c} for r, c in ranked[:listed]]
 
 
 def figure_key(name: str, params: dict | None = None, context: str = "out",
