@@ -76,5 +76,7 @@ COMPONENTS = {
     "albcap_interleaved_detect": lambda **p: _load("interleave", "InterleavedDetect", **p),
     "albcap_link": lambda **p: _load("device", "Link", **p),
     "albcap_frame_packetizer": lambda **p: _load("frame", "FramePacketizer", **p),
-    "albcap_top": lambda **p: _load("top", "Top", **p),  # pipeline and link; the pipeline is inside
+    # the chain from ADC codes to frame packets: the device minus its link
+    "albcap_pipeline": lambda **p: _load("pipeline", "Pipeline", **p),
+    "albcap_top": lambda **p: _load("top", "Top", **p),  # the pipeline and the link
 }

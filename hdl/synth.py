@@ -226,28 +226,12 @@ def _run(cmd: list[str], cwd: Path, what: str) -> str:
     return proc.stdout
 
 
-def _extra_components() -> dict:
-    """Components that :func:`synth_all` measures beyond :data:`hdl.export.COMPONENTS`.
-
-    ``albcap_pipeline`` (:class:`hdl.pipeline.Pipeline`: gate, stitch, filter, detector and the
-    frame packetizer) when that module exists, so the figures show the stages joined.
-    """
-    from importlib import util
-
-    if util.find_spec(f"{__package__}.pipeline") is None:
-        return {}
-
-    def pipeline(**params):
-        from .pipeline import Pipeline
-        return Pipeline(**params)
-
-    return {"albcap_pipeline": pipeline}
-
-
 def synth_components() -> dict:
+    """The components ``albcap hdl synth`` measures: every exported one
+    (:data:`hdl.export.COMPONENTS`, ``albcap_pipeline`` among them), by module name."""
     from .export import COMPONENTS
 
-    return {**COMPONENTS, **_extra_components()}
+    return dict(COMPONENTS)
 
 
 ROUTERS = ("router1", "router2")
@@ -268,8 +252,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     Parameters
     ----------
     name : str
-        A key of :data:`hdl.export.COMPONENTS` (e.g. ``"albcap_stitch"``) or
-        ``"albcap_pipeline"``.
+        A key of :data:`hdl.export.COMPONENTS` (e.g. ``"albcap_stitch"``,
+        ``"albcap_pipeline"``).
     target_mhz : float
         Clock constraint given to nextpnr, MHz (the achieved fmax is reported either way).
     lanes : int, optional
