@@ -82,8 +82,8 @@ class TestSynth:
     def test_missing_on_several_seeds(self, tmp_path, capsys):
         """``missing_on``: the registers that miss the clock on more than one seed, and on how
         many, and ``missing_any``, how many miss on at least one, checked against each seed's
-        own report. At 400 MHz the stitch misses at many
-        registers on both seeds, on some at one of them only."""
+        own report. At 400 MHz the stitch misses at many registers on both seeds, on some at
+        one of them only."""
         res = synth_all(["albcap_stitch"], target_mhz=400.0, seed=[1, 2])
         r = res["components"]["albcap_stitch"]
         every = []
