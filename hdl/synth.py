@@ -672,10 +672,10 @@ def print_table(res: dict) -> None:
             names = ", ".join(f"{x['register']} ({x['slack_ns']:+.2f})" for x in f["worst"][:4])
             print(f"{'':>16} {f['endpoints']} endpoints below zero slack in {f['registers']} "
                   f"registers: {names}")
+        n = len(r.get("seeds", ()))
         if r.get("missing_on"):
-            n = len(r["seeds"])
             names = ", ".join(f"{x['register']} ({x['seeds']})" for x in r["missing_on"][:6])
             print(f"{'':>16} missing on more than one of the {n} seeds: {names}")
         if r.get("missing_any"):
             print(f"{'':>16} {r['missing_any']} registers miss the clock on at least one of "
-                  f"the {len(r['seeds'])} seeds")
+                  f"the {n} seeds")
