@@ -13,9 +13,11 @@ a stall holds them, it never adds any), so by then the filter has accepted sampl
 ``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of them before the surface
 was known. They must all still use template 0, so the join is exact for
 ``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (22 at one
-lane), below the register's floor of 24 (the slack is there for pipeline stages bought for
-speed). Tested at the floor with surfaces on plain, idle and back-pressured traffic, and with
-more lanes at ``min_bin_offset`` itself (``tests/test_hdl_detect_lanes.py``).
+lane), below the register's floor of 24; the pipeline's join, with a register slice before its
+fork, needs 24, the floor itself (:attr:`FilterDetect.min_bin_offset`), so a clock more in the
+filter, on the detector's surface path or at the fork needs the floor raised. Tested at the
+floor with surfaces on plain, idle and back-pressured traffic, and with more lanes at
+``min_bin_offset`` itself (``tests/test_hdl_detect_lanes.py``).
 
 With the detector's lookahead (``lookahead = D`` beats, :class:`~hdl.peak_detect.PeakDetect`)
 the beat holding ``y[s + 1]`` may wait behind ``D`` others in the detector's FIFO, so up to
