@@ -552,8 +552,9 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
               floorplan: str | None = None) -> dict:
-    """:func:`synthesize` every component (and the pipeline, when it exists); returns
-    ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
+    """:func:`synthesize` every component named (default: every one of
+    :func:`synth_components`, the pipeline among them); returns ``{"device": ...,
+    "components": {...}}``. ``params`` (constructor keywords) go to every
     component named, so give them with one component at a time.
 
     ``seed`` may name several of nextpnr's seeds: each component's netlist is then made once
