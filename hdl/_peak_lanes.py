@@ -84,11 +84,10 @@ from operator import or_
 from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, signed
 from amaranth.lib import data
 
-from ._carry import folded_add, increment_if
 from ._peak_common import _POS, _QUEUE
 from ._peak_decide import decide
 from ._peak_stats import Windows, window_statistics
-from ._primitives import _le, _reg, _room, _step, _Store
+from ._primitives import _le, _reg, _room, _step, _Store, _sub_sign
 from .matched_filter import TAG_WIDTH
 from .peak_detect import (
     _P_MAX_LOG2,
@@ -136,8 +135,8 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
         the choice of the sum (as ``thr`` loads), the bound's cap and the registered tag match
         (into ``go``), from the beat that closes the noise window.
 
-    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 28, 16)``, 4 lanes ``(4, 36, 20)``,
-    8 lanes ``(4, 40, 22)``.
+    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 26, 16)``, 4 lanes ``(4, 34, 20)``,
+    8 lanes ``(4, 38, 22)``.
 
     With a lookahead of ``D`` beats (``H = lookahead_hides(lanes)``):
 
@@ -275,29 +274,19 @@ def elaborate(top, platform):
                  inb.needs.eq(Mux(d.first, Array(first_needs)[d.count], next_needs.bit_select(
                      d.count, 1))),
                  inb.tag.eq(Mux(d.first, tag_p1, tag))]
-    def track_input(ready):
-        # ready: (signal, level), the port's ready as a register's level (accept = valid & it)
+    def track_input():
         with m.If(accept):
             # (the compares are made on the register n_next, the port's first only chooses;
             # n_next steps by L, not by the beat's count: only a frame's last beat may be
             # partial, and the next beat after it is a first, which does not read n_next. An
             # add of the port's count after the first's mux, behind the filter's LUT-RAM
             # output, was the pipeline's worst path, 7.45 ns.)
-            # next_needs[c]: base_in >= need_at[c], the sign of (0 at a first, else n_next)
-            # - need_at[c], with the first's choice inside the chain's LUTs (hdl._carry): as a
-            # LUT after the chain it missed 200 MHz on many placements of the one-lane pipeline
             m.d.sync += [n_next.eq(Mux(d.first, L, n_next + L)),
-                         next_needs.eq(Cat(
-                             ~folded_add(m, f"next_needs{c}", max(len(n_next), len(at)) + 2,
-                                         "clear_sub", n_next, at, d.first)[-1]
-                             for c, at in enumerate(need_at)))]
+                         next_needs.eq(Cat(Mux(d.first, at <= 0,
+                                               ~_sub_sign(m, n_next, at, f"next_needs{c}"))
+                                           for c, at in enumerate(need_at)))]
             with m.If(d.first):
-                m.d.sync += tag.eq(tag_p1)
-        # tag_p1 steps at an accepted first beat, that condition the carry into its increment
-        # (hdl._carry): as the enable it shared with `tag`, a LUT of the port and the skid
-        # fanned out to both registers' 18 flip-flops, it missed 200 MHz on many placements
-        m.d.sync += tag_p1.eq(increment_if(m, "tag_step", tag_p1,
-                                           [(top.i.valid, 1), (d.first, 1), ready]))
+                m.d.sync += [tag.eq(tag_p1), tag_p1.eq(tag_p1 + 1)]
 
     if not LA:
         skid, h1 = Signal(held), Signal(held)
@@ -305,7 +294,7 @@ def elaborate(top, platform):
         d1, d1_base, d1_needs, d1_tag = h1.beat, h1.base, h1.needs, h1.tag
         m.d.comb += [top.i.ready.eq(~s_valid), accept.eq(top.i.valid & ~s_valid),
                      free.eq(~d1_valid | go)]
-        track_input((s_valid, 0))
+        track_input()
         loads = Signal()  # D1 takes a new beat (from the skid if it holds one)
         m.d.comb += loads.eq(free & (s_valid | top.i.valid))
         with m.If(free):
@@ -401,7 +390,7 @@ def elaborate(top, platform):
                      free.eq(~d1_valid | go), fifo.w_data.eq(inb), fifo.w_en.eq(accept),
                      fifo.w_keep.eq(accept), fifo.r.ready.eq(free),
                      pop.eq(free & fifo.r.valid), q_pop.eq(go & d1.last & d1_needs)]
-        track_input((in_rdy, 1))
+        track_input()
         with m.If(accept):
             m.d.sync += prev_needs.eq(inb.needs)
         with m.If(free):

@@ -20,7 +20,6 @@ from amaranth.lib import data
 
 from model.matched_filter import OUT_WIDTH
 
-from ._carry import folded_add
 from ._peak_common import _QUEUE, thr_as_key
 from ._primitives import _delay, _delay_to, _reg, _Store, _sub_sign, _sum_tree
 from .matched_filter import TAG_WIDTH, RegisteredMultiplier
@@ -161,10 +160,7 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     mu = Signal(_Y)
     t = sd[depth]
     with m.If(t.valid):
-        # the window's first beat drops the old sum inside the carry chain's LUTs (a LUT per
-        # bit before the chain missed 200 MHz on most placements of the detector)
-        m.d.sync += mu_sum.eq(folded_add(m, "mu_acc", len(mu_sum), "clear", mu_sum, mu_tree,
-                                         t.first))
+        m.d.sync += mu_sum.eq(Mux(t.first, 0, mu_sum) + mu_tree)
     with m.If(sd[depth + 1].valid & sd[depth + 1].close_mu):
         m.d.sync += mu.eq(window_shift(mu_sum))
     # |y - mu| on the noise lanes, the clock after mu is registered for the closing beat
@@ -176,17 +172,13 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         # y - mu, then its magnitude a clock later (a subtract, a compare and a negation in one
         # clock were a worst path)
         diff = _reg(m, Mux(dm[j], dy[j] - mu, 0), signed(OUT_WIDTH + 1), f"dev_diff{j}")
-        # 0 - diff or 0 + diff by its sign, the choice inside the carry chain's LUTs
-        # (hdl._carry): a negation, then a choice after it, was a LUT after the chain
-        mag = folded_add(m, f"dev_abs{j}", OUT_WIDTH + 1, "sub", Const(0, 1), diff, diff[-1])
-        devs.append(_reg(m, mag, unsigned(OUT_WIDTH + 1), f"dev{j}"))
+        devs.append(_reg(m, Mux(diff < 0, -diff, diff), unsigned(OUT_WIDTH + 1), f"dev{j}"))
     dev_tree = _sum_tree(m, devs, "dev_tree")
     sd2 = _delay(m, sd[depth + 3], depth + 1, "side_dev")
     t = sd2[depth + 1]  # the side band of the beat at the dev tree's root
     dev_sum = Signal(unsigned(OUT_WIDTH + 1 + _P_MAX_LOG2))
     with m.If(t.valid):
-        m.d.sync += dev_sum.eq(folded_add(m, "dev_acc", len(dev_sum), "clear", dev_sum,
-                                          dev_tree, t.first))
+        m.d.sync += dev_sum.eq(Mux(t.first, 0, dev_sum) + dev_tree)
     t_dev = t
     dev_closed = _reg(m, t.valid & t.close_dev, 1, "dev_closed")
     dev_tag = _reg(m, t.tag, TAG_WIDTH, "dev_tag")

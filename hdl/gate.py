@@ -26,7 +26,6 @@ from amaranth.lib.wiring import In, Out
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
 from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 
-from ._carry import increment_if
 from ._primitives import _le, _reg, _step, _Store
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
@@ -451,12 +450,8 @@ class Gate(wiring.Component):
             # flip-flops) was the one-lane pipeline's worst path on a seed of each of four
             # builds (5.96-6.38 ns, 4.96-5.38 of it routing, forty-first session).
             m.d.sync += h.eq(Mux(idle, h_live, h_held))
-        # the shot number steps at an accepted trigger (step & start), that condition the
-        # carry into the increment (hdl._carry): as the enable of its 16 flip-flops, the LUT
-        # of `step`, the trigger and `busy` fanned out to them, a path that missed 200 MHz on
-        # 80 endpoints over eighteen placements of the one-lane pipeline
-        m.d.sync += shot.eq(increment_if(m, "shot_step", shot,
-                                         [(step, 1), (p.trigger, 1), (busy, 0)]))
+            with m.If(start):
+                m.d.sync += shot.eq(shot + 1)
 
         # The FIFO writes of the samples after a frame's first, and of the header of a longer
         # frame, registered (the memories' write enables and the FIFOs' own pointer logic

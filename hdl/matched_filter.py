@@ -34,7 +34,6 @@ from amaranth.lib.wiring import In, Out
 from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
-from ._carry import round_saturate
 from ._primitives import _fills, _le, _output_buffer, _reg, _step
 from .layouts import STITCHED, config_signature
 
@@ -267,6 +266,7 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
     halves (:func:`_ge_split`), beside the two parts of the shift."""
     t = Signal(signed(len(acc) + 1), name=f"{prefix}t")
     over, under = Signal(name=f"{prefix}over"), Signal(name=f"{prefix}under")
+    t_low = t[:OUT_WIDTH + 1] + 1
     if split:
         # a 32-way shift is a 32:1 mux per bit, five levels of logic and their routes (6.2 ns
         # at one lane); in two stages each is a 4:1 or an 8:1 mux. The low bits of sh travel
@@ -292,10 +292,7 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
     else:
         m.d.sync += [t.eq((acc << 1) >> sh), over.eq(acc >= over_at),
                      under.eq(acc < under_at)]
-    # the round's carry chain steered by the flags so that its sum is the bound
-    # (hdl._carry): as a choice after the chain, the output register's LUT
-    assert len(y) == OUT_WIDTH and _Y_LO == -1 - _Y_HI == -(1 << (OUT_WIDTH - 1))
-    m.d.sync += y.eq(round_saturate(m, f"{prefix}round_sat", t[:OUT_WIDTH + 1], over, under))
+    m.d.sync += y.eq(Mux(over, _Y_HI, Mux(under, _Y_LO, t_low[1:])))
 
 
 def _coef_chain(m: Module, coef, groups: int, read_after: int = 2):

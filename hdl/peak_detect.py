@@ -28,7 +28,6 @@ from model.matched_filter import L_MAX, OUT_WIDTH
 from model.peak_detect import NOISE_MAX
 from model.registers import by_name
 
-from ._carry import folded_add
 from .layouts import config_signature, struct_layout
 from .matched_filter import N_WIDTH, SURFACE, filter_out_layout
 
@@ -41,11 +40,11 @@ THR_WIDTH = max(by_name("min_thr").hi, (by_name("k_thr_q4").hi * NOISE_MAX) >> 4
 #: Steps of the sub-sample divider (``q + 128`` in ``0..256``).
 DIVIDE_STEPS = 9
 #: One lane: clocks from accepting a frame's last sample to its result beat being valid, when
-#: the sample does not wait (the decision and bottom stages, the divider's four loading
-#: clocks, its load step and its steps, the clock that takes the last quotient bit and the
-#: clock that registers the payload and raises ``o.valid``). ``lanes`` add ``4 ceil(log2 lanes)``
+#: the sample does not wait (the decision and bottom stages, the divider's three loading
+#: clocks, its steps, the clock that takes the last quotient bit and the clock that registers
+#: the payload and raises ``o.valid``). ``lanes`` add ``4 ceil(log2 lanes)``
 #: (:func:`hdl._peak_lanes.latencies`).
-RESULT_LATENCY = DIVIDE_STEPS + 19
+RESULT_LATENCY = DIVIDE_STEPS + 17
 #: Clocks from accepting ``y[s + 1]`` to the surface message of the peak at ``s`` being valid,
 #: when that sample does not wait for the threshold (any ``lanes``).
 SURFACE_LATENCY = 4
@@ -82,15 +81,11 @@ def record_layout(k_shape) -> data.StructLayout:
 
 def divider_layout(k_shape) -> data.StructLayout:
     """One peak in the sub-sample divider: what the record needs plus ``b - a``, ``b - c``,
-    ``den``, the step's operand, the (scaled) remainder and the quotient bits."""
+    ``den`` and ``-den``, the (scaled) remainder and the quotient bits."""
     return data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": k_shape, "rise": _RISE,
                               "bma": signed(OUT_WIDTH + 1), "bmc": signed(OUT_WIDTH + 1),
                               "den": signed(OUT_WIDTH + 2),
-                              # the numerator's upper part, then what the step adds to (or
-                              # takes from) the remainder's upper bits: it at the load step,
-                              # then 2 den
-                              "top": signed(OUT_WIDTH + 13 - DIVIDE_STEPS),
-                              "dop": signed(OUT_WIDTH + 13 - DIVIDE_STEPS),
+                              "nden": signed(OUT_WIDTH + 2),
                               "rem": signed(OUT_WIDTH + 13),
                               "q": unsigned(DIVIDE_STEPS),
                               # made while the divider steps, so that the result beat is a
@@ -102,22 +97,19 @@ def divider_layout(k_shape) -> data.StructLayout:
 def load_divider(m, fins, recs, long, start, mu):
     """Load the divider registers ``fins`` (surface, bottom) from the records ``recs``.
 
-    Four clocks, one add of two registers or one choice between two each: at ``start`` the
-    records' ``b - a`` and ``b - c`` are registered (with ``found``, gated by ``long``: the
-    frame reached ``W + 2P + 2`` samples, and the other fields), at the next edge their sum
-    ``den = 2 b - a - c``, at the third the numerator's upper part ``top = (b - a) + (den >>
-    9)``, at the fourth the load step's operand ``dop`` (``top``, then ``2 den``: the choice
-    of two registers, so that no choice follows an add) and the remainder's preset
-    (:func:`divide`). ``2 b - a - c`` straight from the records (three operands, a LUT layer
-    before the carry chain) was a worst path (5.3 ns), and before that two adds in series.
-    At the second clock also ``b - mu`` and ``256 n - 128`` (``mu``: the frame's baseline
-    register, set before ``start``), for :func:`drive_result`. Returns the signal that is
-    high on the fourth clock (the divider's load step is the clock after it).
+    Three clocks, one add or subtract of two registers each: at ``start`` the records'
+    ``b - a`` and ``b - c`` are registered (with ``found``, gated by ``long``: the frame
+    reached ``W + 2P + 2`` samples, and the other fields), at the next edge their sum ``den =
+    2 b - a - c``, at the third ``-den`` while :func:`divide`'s adder makes ``N' = 512 (b - a)
+    + den``. ``2 b - a - c`` straight from the records (three operands, a LUT layer before the
+    carry chain) was a worst path (5.3 ns), and before that two adds in series. At the second
+    clock also ``b - mu`` and ``256 n - 128`` (``mu``: the frame's baseline register, set before
+    ``start``), for :func:`drive_result`. Returns the signal that is high on the third clock
+    (start the divider then).
     """
     loading = Signal(name="div_loading")
     loading2 = Signal(name="div_loading2")
-    pre = Signal(name="div_pre")
-    m.d.sync += [loading.eq(start), loading2.eq(loading), pre.eq(loading2)]
+    m.d.sync += [loading.eq(start), loading2.eq(loading)]
     for fin, r in zip(fins, recs, strict=True):
         with m.If(start):
             m.d.sync += [fin.found.eq(r.found & long), fin.n.eq(r.n), fin.b.eq(r.b),
@@ -127,19 +119,14 @@ def load_divider(m, fins, recs, long, start, mu):
             m.d.sync += [fin.q.eq(0), fin.den.eq(fin.bma + fin.bmc), fin.amp.eq(fin.b - mu),
                          fin.pos0.eq((fin.n << 8) - 128)]
         with m.If(loading2):
-            m.d.sync += fin.top.eq(fin.bma + (fin.den >> DIVIDE_STEPS))
-        # den stands still while the steps run. The add above chosen here against 2 den in
-        # one clock (the choice after the chain, into `dop`) missed 200 MHz on the detector
-        # alone.
-        m.d.sync += fin.dop.eq(Mux(pre, fin.top, fin.den << 1))
-    return pre
+            m.d.sync += fin.nden.eq(-fin.den)
+    return loading2
 
 
-def divide(m, fins, pre, q_done):
-    """The load step and :data:`DIVIDE_STEPS` steps, one per clock from the clock after
-    ``pre`` (the clock the load step's operand is registered, :func:`load_divider`); the
-    clock after the last step (which takes the last quotient bit), pulse ``q_done`` (a
-    register).
+def divide(m, fins, start, q_done):
+    """:data:`DIVIDE_STEPS` steps, one per clock from the clock after ``start`` (the clock
+    ``fins`` are loaded); the clock after the last (which takes the last quotient bit), pulse
+    ``q_done`` (a register).
 
     The steps are counted by a one-hot shift register and enabled by a register of their own
     (``div_upd``): a counter compare deciding the enable of every divider register was a worst
@@ -152,48 +139,31 @@ def divide(m, fins, pre, q_done):
     where restoring division's sign chose the new remainder after it (the chain, then a mux
     across every remainder bit: a worst path, 5.8 ns). The remainder is kept scaled by
     ``2^i`` (``rem = 2 rem -/+ (D << 9)``), so the divisor stands still and its low nine bits
-    are zero: the carry chain covers the upper bits only. The add or subtract is chosen by
-    the remainder's sign inside the chain's own LUTs (:class:`hdl._carry.FoldedAdd`): as a
-    LUT per bit before the chain, the sign's fan-out, the LUT and the 28-bit chain missed 200
-    MHz on every placement of the one-lane pipeline (5.4 ns), and neither halving the chain
-    nor unrolling the loop helped (``docs/fpga.md``). So the chain's inputs are registers
-    and nothing else: the remainder, the operand ``dop`` and the sign.
-
-    The numerator ``N' = 512 (b - a + (den >> 9)) + den mod 512`` is loaded through the same
-    chain, so no load mux sits after it nor before it: the clock before, the remainder is
-    preset to its sign bit alone (``-2^36``: negative, so the step adds, and its upper bits
-    below the sign zero), and the load step adds ``dop``, then the numerator's upper part
-    ``top``, while the low nine bits take ``den mod 512``. The quotient bit is shifted in a clock
-    later from the remainder register's sign (``div_upd_d``; the last one in the clock after
-    the last step, which raises ``done``): the chain ends in the remainder's flip-flops and
-    nowhere else.
+    are zero: the carry chain covers the upper 29 bits only (it was 37). It is loaded through
+    the same adder (at ``start``: ``N' = 512 (b - a + (den >> 9)) + den mod 512``), so no load
+    mux sits after the chain, and the quotient bit is shifted in a clock later from the
+    remainder register's sign (``div_upd_d``; the last one in the clock after the last step,
+    which raises ``done``): the chain ends in the remainder's flip-flops and nowhere else.
     """
-    S = DIVIDE_STEPS  # N' = 2^S (b - a) + den; D << (S - 1) is the first d_i
-    load = Signal(name="div_load")  # the load step
-    ce = Signal(name="div_ce")  # the remainder's enable: the load step and every step
-    phase = Signal(S + 1, name="div_phase")  # one-hot: steps left, then the end
+    phase = Signal(DIVIDE_STEPS + 1, name="div_phase")  # one-hot: steps left, then the end
     upd = Signal(name="div_upd")
     upd_d = Signal(name="div_upd_d")  # the clocks after the steps: take a quotient bit
-    m.d.sync += [load.eq(pre), upd_d.eq(upd), phase.eq(phase >> 1)]
-    with m.If(load):
-        m.d.sync += [phase.eq(1 << S), upd.eq(1)]
+    m.d.sync += upd_d.eq(upd)
+    m.d.sync += phase.eq(phase >> 1)
+    with m.If(start):
+        m.d.sync += [phase.eq(1 << DIVIDE_STEPS), upd.eq(1)]
     with m.Elif(phase[1]):
         m.d.sync += upd.eq(0)  # this clock makes the last step
-    with m.If(pre):
-        m.d.sync += ce.eq(1)
-    with m.Elif(phase[1]):
-        m.d.sync += ce.eq(0)
     m.d.sync += q_done.eq(phase[0])
+    S = DIVIDE_STEPS  # N' = 2^S (b - a) + den; D << (S - 1) is the first d_i
     for i, fin in enumerate(fins):
         r = fin.rem
-        # r's upper part (the scaled remainder, shifted) plus dop if r < 0, else minus dop
-        hi = folded_add(m, f"div_add{i}", len(r) - S, "add", r[S - 1:], fin.dop, r[-1])
-        # the preset first, outside the enable: the flip-flops' own reset (rule 10 of
-        # docs/fpga.md), which ECP5's reset-over-enable applies whatever the enable
-        with m.If(pre):
-            m.d.sync += r.eq(1 << (len(r) - 1))
-        with m.Elif(ce):
-            m.d.sync += r.eq(Cat(Mux(load, fin.den[:S], Cat(Const(0, 1), r[:S - 1])), hi))
+        hi = Signal(signed(len(r) - S), name=f"div_hi{i}")  # the sum at bit S and up
+        m.d.comb += hi.eq(Mux(start, fin.bma, r[S - 1:].as_signed())
+                          + Mux(start, fin.den >> S,
+                                Mux(r[-1], fin.den << 1, fin.nden << 1)))
+        with m.If(start | upd):
+            m.d.sync += r.eq(Cat(Mux(start, fin.den[:S], Cat(Const(0, 1), r[:S - 1])), hi))
     with m.If(upd_d):
         m.d.sync += [fin.q.eq((fin.q << 1) | ~fin.rem[-1]) for fin in fins]
 
@@ -266,7 +236,7 @@ class PeakDetect(wiring.Component):
     surface_latency, result_latency : int
         Clocks from accepting the beat holding ``y[s + 1]`` to the surface message, and from
         accepting a frame's last beat to its result beat, when that beat does not wait (one
-        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 28). With a lookahead of
+        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 26). With a lookahead of
         ``D`` beats, the worst cases: the surface ``4 + max(D, lookahead_hides - 1)`` (also
         the most beats accepted in between, which bounds ``bin_offset`` in
         :class:`hdl.detect.FilterDetect`), the result ``D`` clocks later than without (a
@@ -290,7 +260,7 @@ class PeakDetect(wiring.Component):
     a lookahead, also after the frames still in its FIFO: up to ``lookahead`` beats).
 
     No bubble: with ``lookahead >= lookahead_hides``, ``o`` taken as soon as it is valid and
-    every frame at least ``result_latency`` of ``lookahead = 0`` beats long (``28 + 4
+    every frame at least ``result_latency`` of ``lookahead = 0`` beats long (``26 + 4
     ceil(log2 lanes)``: the frame end's wait for the previous result, which the lookahead
     does not hide), frames sent back to back are accepted at one beat per clock from reset
     on, ``i.ready`` never low: the first frame's wait fills the FIFO to ``lookahead_hides -

@@ -420,10 +420,10 @@ class TestLookaheadArgument:
     def test_latencies(self):
         """Surface and result latencies grow by the FIFO; the wait left is ``H - D``."""
         plain = detector()
-        assert (plain.surface_latency, plain.result_latency, plain.threshold_bubble) == (4, 28, 16)
+        assert (plain.surface_latency, plain.result_latency, plain.threshold_bubble) == (4, 26, 16)
         assert plain.lookahead_hides == 20 == plain.threshold_bubble + 4
-        for d, want in ((4, (23, 32, 16)), (19, (23, 47, 1)), (20, (24, 48, 0)),
-                        (32, (36, 60, 0))):
+        for d, want in ((4, (23, 30, 16)), (19, (23, 45, 1)), (20, (24, 46, 0)),
+                        (32, (36, 58, 0))):
             dut = detector(lookahead=d)
             assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == want, d
         assert detector(lanes=10, lookahead=28).threshold_bubble == 0
