@@ -554,8 +554,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               floorplan: str | None = None) -> dict:
     """:func:`synthesize` every component named (default: every one of
     :func:`synth_components`, the pipeline among them); returns ``{"device": ...,
-    "components": {...}}``. ``params`` (constructor keywords) go to every
-    component named, so give them with one component at a time.
+    "components": {...}}``. ``params`` (constructor keywords) go to every component named,
+    so give them with one component at a time.
 
     ``seed`` may name several of nextpnr's seeds: each component's netlist is then made once
     and placed with each seed, one after the other (:func:`_synthesize`), and its result is
