@@ -141,7 +141,8 @@ def register(subparsers) -> None:
     from .synth import synth_components
 
     syn.add_argument("--component", action="append", choices=sorted(synth_components()),
-                     help="only this component (repeatable; default all)")
+                     help="only this component (repeatable; default every exported one; "
+                     "albcap_ceiling, a diagnostic, only when named)")
     syn.add_argument("--freq", type=float, default=200.0, help="clock constraint, MHz")
     from .synth import ROUTERS
 

@@ -33,6 +33,7 @@ from pathlib import Path
 
 from amaranth.hdl import Elaboratable, Signal
 
+from ._ceiling import Ceiling
 from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
 from ._levels import deepest_path, logic_levels
 
@@ -228,10 +229,17 @@ def _run(cmd: list[str], cwd: Path, what: str) -> str:
 
 def synth_components() -> dict:
     """The components ``albcap hdl synth`` measures: every exported one
-    (:data:`hdl.export.COMPONENTS`, ``albcap_pipeline`` among them), by module name."""
+    (:data:`hdl.export.COMPONENTS`, ``albcap_pipeline`` among them), by module name, and the
+    diagnostics that are placed but not exported (:data:`DIAGNOSTICS`)."""
     from .export import COMPONENTS
 
-    return dict(COMPONENTS)
+    return {**COMPONENTS, **DIAGNOSTICS}
+
+
+#: Designs placed only to measure the toolchain, never exported or simulated: ``albcap_ceiling``
+#: (:class:`hdl._ceiling.Ceiling`), the pipeline's hard blocks with one carry chain or one LUT
+#: between registers, the clock any logic around those blocks can hope for.
+DIAGNOSTICS = {"albcap_ceiling": Ceiling}
 
 
 ROUTERS = ("router1", "router2")
@@ -552,10 +560,10 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
               floorplan: str | None = None) -> dict:
-    """:func:`synthesize` every component named (default: every one of
-    :func:`synth_components`, the pipeline among them); returns ``{"device": ...,
-    "components": {...}}``. ``params`` (constructor keywords) go to every component named,
-    so give them with one component at a time.
+    """:func:`synthesize` every component named (default: every exported one of
+    :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
+    ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
+    component named, so give them with one component at a time.
 
     ``seed`` may name several of nextpnr's seeds: each component's netlist is then made once
     and placed with each seed, one after the other (:func:`_synthesize`), and its result is
@@ -570,7 +578,9 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     seeds = [seed] if isinstance(seed, int) else list(seed)
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be one or more distinct integers, not {seed!r}")
-    names = sorted(synth_components()) if not names else list(names)
+    if not names:  # every exported component; a diagnostic only when named
+        names = sorted(set(synth_components()) - set(DIAGNOSTICS))
+    names = list(names)
     components = {}
     for n in names:
         runs, missed = _synthesize(n, target_mhz, None, None, params, router, context, placer,
