@@ -6,6 +6,7 @@ one LUT between any two registers. Both are checked against the real things, the
 elaboration and Yosys's netlist.
 """
 
+import pytest
 from amaranth.hdl import Fragment
 
 from hdl._bram import BlockRAM
@@ -37,10 +38,13 @@ def test_the_ceiling_has_the_pipelines_hard_blocks():
     assert pipeline == (sorted(STORES, key=str), TAPS + 3)  # the stitch's one, the detector's two
 
 
-def test_between_its_registers_one_chain_or_one_lut():
-    deep = levels("albcap_ceiling", context="in", static="registers", match=r"^core\.")
-    # the filter's tree, the round, the counters: a chain each; the bank muxes: a LUT
+@pytest.mark.parametrize("params", [{}, {"tree_halves": 1, "filler": 8}])
+def test_between_its_registers_one_chain_or_one_lut(params):
+    deep = levels("albcap_ceiling", params, context="in", static="registers",
+                  match=r"^core\.")
+    # the filter's tree, the round, the counters: a chain each; the bank muxes, the filler: a LUT
     assert any(name.startswith("core.t6_") for name in deep), sorted(deep)[:20]
+    assert ("core.fill63" in deep) == ("filler" in params)
     assert max(deep.values()) == 1, {n: v for n, v in deep.items() if v > 1}
 
 
@@ -84,8 +88,8 @@ def test_an_add_in_halves_is_an_add_on_a_stream():
 
 
 def test_its_switches_are_checked():
-    import pytest
-
+    with pytest.raises(ValueError, match="filler must be an integer in 0..512, not 513"):
+        Ceiling(filler=513)
     with pytest.raises(ValueError, match="tree_halves must be 0 or 1, not 2"):
         Ceiling(tree_halves=2)
     with pytest.raises(ValueError, match="product_reg must be 0 or 1, not True"):
