@@ -9,6 +9,7 @@ from hdl.synth import (
     DEVICE,
     failing_endpoints,
     figure_key,
+    missing_by_depth,
     missing_on,
     print_table,
     record_figures,
@@ -96,8 +97,17 @@ class TestSynth:
         assert both and every[0] != every[1]  # (else the test would not tell the two apart)
         assert r["missing_on"] == [{"register": x, "seeds": 2} for x in both][:16]
         assert r["missing_any"] == len(every[0] | every[1]) > len(both)
+        # the same misses by the depth of the register, every missing register counted once
+        by_depth = r["missing_by_depth"]
+        assert sum(x["missing_any"] for x in by_depth) == r["missing_any"]
+        assert sum(x["per_seed"] for x in by_depth) == pytest.approx(
+            (len(every[0]) + len(every[1])) / 2, abs=0.05 * len(by_depth))
+        named = [x for x in by_depth if x["levels"] is not None]
+        assert named and [x["levels"] for x in named] == sorted(x["levels"] for x in named)
+        assert all(x["missing_any"] <= x["registers"] for x in named)
         print_table(res)
         out = capsys.readouterr().out
+        assert "by logic levels, registers missing: " in out
         assert "missing on more than one of the 2 seeds: " in out
         assert f"{r['missing_any']} registers miss the clock on at least one of the 2 seeds" in out
         # counted over placements, the most first, then by name; one placement's alone left out
@@ -219,6 +229,19 @@ class TestSynth:
                            "--static applies in context only: give --context in")):
             with pytest.raises(SystemExit, match=msg):
                 main(["hdl", "synth", *args])
+
+
+def test_missing_by_depth_counts_each_register_at_its_depth():
+    depth = {"a": 0, "b": 1, "c": 1, "d": 3}
+    missed = [{"b", "d", "$x"}, {"d"}, {"b", "c", "d"}]
+    assert missing_by_depth(depth, missed) == [
+        {"levels": 0, "registers": 1, "missing_any": 0, "per_seed": 0.0},
+        {"levels": 1, "registers": 2, "missing_any": 2, "per_seed": 1.0},
+        {"levels": 3, "registers": 1, "missing_any": 1, "per_seed": 1.0},
+        {"levels": None, "missing_any": 1, "per_seed": 0.3},
+    ]
+    assert missing_by_depth(depth, [set(), set()])[1]["missing_any"] == 0
+    assert missing_by_depth({}, missed) == []  # one placement's run: no depths taken
 
 
 def test_failing_endpoints_counts_each_endpoint_once():
