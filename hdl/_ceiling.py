@@ -37,14 +37,17 @@ from amaranth.hdl import Cat, Module, Signal, signed
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from model.matched_filter import COEF_WIDTH, L_MAX
+
 from ._bram import BlockRAM
+from .layouts import STITCHED
 from .matched_filter import RegisteredMultiplier
 
 __all__ = ["Ceiling"]
 
-TAPS = 64  #: the one-lane filter's taps (``taps_max``), one DSP each
-HALF = 16  #: with ``tree_halves``, the bits of an add's low half (a product has 32)
-SAMPLE, COEF = 16, 16  #: the stitched sample's and a tap's bits (hdl.layouts.STITCHED, COEF_WIDTH)
+TAPS = L_MAX  #: the one-lane filter's taps (``taps_max``), one DSP each
+SAMPLE, COEF = STITCHED.width, COEF_WIDTH  #: the stitched sample's and a tap's bits
+HALF = 16  #: with ``tree_halves``, the bits of an add's low half (of a product's 32)
 #: (width, depth, max_banks) of the pipeline's four block RAM stores, in the order of the flow
 STORES = ((42, 4096, 1), (104, 16, None), (24, 4096, None), (9, 32768, 2))
 
