@@ -210,6 +210,27 @@ def deepest_path(netlist, register: str) -> list[dict]:
     return steps
 
 
+def depth_by_module(levels: dict[str, int], parts: int) -> dict[str, dict[int, int]]:
+    """Registers counted by their logic depth, per module: ``{module: {levels: count}}``,
+    modules sorted by name, depths in order.
+
+    A register's module is its name without the last dotted part, cut to the first ``parts``
+    parts (``core.detect.filter.t0_1`` is in ``core.detect`` at 2, ``core.detect.filter`` at
+    3). The registers two or more levels deep are where a one-lane build misses its clock:
+    over eighteen placements of the pipeline, seven in eight of a placement's misses at named
+    registers (``docs/fpga.md``, "The bound"; :func:`hdl.synth.missing_by_depth`), so their
+    count per module is the work left to a clock, measured in a minute of Yosys.
+    """
+    if parts < 1:
+        raise ValueError(f"parts must be at least 1, not {parts!r}")
+    out: dict[str, dict[int, int]] = {}
+    for name, lv in levels.items():
+        module = ".".join(name.split(".")[:-1][:parts]) or "(top)"
+        row = out.setdefault(module, {})
+        row[lv] = row.get(lv, 0) + 1
+    return {m: dict(sorted(row.items())) for m, row in sorted(out.items())}
+
+
 def deepest(levels: dict[str, int]) -> list[tuple[str, int]]:
     """``(register, levels)`` pairs, the deepest first (then by name)."""
     return sorted(levels.items(), key=lambda kv: (-kv[1], kv[0]))

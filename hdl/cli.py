@@ -96,8 +96,17 @@ def _synth(args) -> int:
     return 0
 
 
+def _summed(table: dict[str, dict[int, int]]) -> dict[int, int]:
+    """The counts of :func:`hdl._levels.depth_by_module` over every module, by depth."""
+    total: dict[int, int] = {}
+    for row in table.values():
+        for lv, n in row.items():
+            total[lv] = total.get(lv, 0) + n
+    return dict(sorted(total.items()))
+
+
 def _levels(args) -> int:
-    from ._levels import deepest
+    from ._levels import deepest, depth_by_module
     from .synth import levels
 
     params = _params(args)
@@ -110,8 +119,18 @@ def _levels(args) -> int:
         for st in steps:
             print(f"{st['levels']:3d}  {st['type']:<16} {st['net'] or st['cell']}")
         return 0
-    ranked = deepest(levels(args.component, params or None, args.context, args.static,
-                            args.match))
+    found = levels(args.component, params or None, args.context, args.static, args.match)
+    if args.by_module is not None:
+        table = depth_by_module(found, args.by_module)
+        if args.json:
+            print(json.dumps(table, indent=1))
+            return 0
+        for module, row in [*table.items(), ("all", _summed(table))]:
+            counts = "  ".join(f"{lv}: {n}" for lv, n in row.items())
+            deep = sum(n for lv, n in row.items() if lv >= 2)
+            print(f"{module:<28} two or more deep: {deep:4d}   {counts}")
+        return 0
+    ranked = deepest(found)
     if args.json:
         print(json.dumps(dict(ranked), indent=1))
         return 0
@@ -195,5 +214,10 @@ def register(subparsers) -> None:
     lev.add_argument("--path", metavar="REGISTER",
                      help="print the deepest path into this register (a name as listed, "
                           "e.g. core.filter.after) instead, cell by cell")
+    lev.add_argument("--by-module", type=int, metavar="PARTS",
+                     help="count the registers by depth per module instead (its name cut to "
+                          "PARTS dotted parts: 2 for the pipeline's stages in context), with "
+                          "how many are two or more levels deep, where a build misses its "
+                          "clock")
     lev.add_argument("--json", action="store_true", help="print every register as JSON")
     lev.set_defaults(func=_levels)

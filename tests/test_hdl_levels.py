@@ -5,7 +5,7 @@ import json
 import pytest
 
 from firmware_host.cli import main
-from hdl._levels import deepest_path, logic_levels, top_module
+from hdl._levels import deepest_path, depth_by_module, logic_levels, top_module
 
 
 class _Net:
@@ -155,3 +155,28 @@ def test_command_path_on_yosys_netlist(capsys):
     assert steps[0]["levels"] == 0 and steps[0]["type"] in ("TRELLIS_FF", "port")
     lv = [st["levels"] for st in steps]
     assert lv == sorted(lv) and 0 < lv[-1] <= 8
+
+
+def test_depth_by_module():
+    found = {"core.gate.a": 0, "core.gate.b": 2, "core.gate.hw.c": 3, "core.x": 1, "y": 2}
+    assert depth_by_module(found, 2) == {
+        "(top)": {2: 1}, "core": {1: 1}, "core.gate": {0: 1, 2: 1, 3: 1}}
+    assert depth_by_module(found, 3)["core.gate.hw"] == {3: 1}
+    with pytest.raises(ValueError, match="parts must be at least 1, not 0"):
+        depth_by_module(found, 0)
+
+
+def test_command_by_module(capsys):
+    """``albcap hdl levels --by-module``: the stitch's registers counted by depth, per module,
+    adding up to the registers the plain listing gives."""
+    assert main(["hdl", "levels", "--component", "albcap_stitch", "--json"]) == 0
+    every = json.loads(capsys.readouterr().out)
+    assert main(["hdl", "levels", "--component", "albcap_stitch", "--by-module", "1",
+                 "--json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert sum(n for row in table.values() for n in row.values()) == len(every)
+    assert main(["hdl", "levels", "--component", "albcap_stitch", "--by-module", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    deep = sum(1 for v in every.values() if v >= 2)
+    assert lines[-1].split()[:5] == ["all", "two", "or", "more", "deep:"]
+    assert int(lines[-1].split()[5]) == deep
