@@ -24,7 +24,7 @@ routes are those the hard blocks' sites force. Its clock over nextpnr seeds is t
 figure below 200 MHz says no restructuring of the pipeline's logic reaches 200 MHz with these
 blocks and this toolchain; a figure well above it says the headroom is there and lies in the
 pipeline's logic and control. Measured (``docs/fpga.md``, "The bound"): 198.5-214.2 MHz over
-ten seeds as the filter's tree is (a carry chain of 33-38 bits an add), 219.2-244.7 with each
+ten seeds as the filter's tree is (a carry chain of 33-38 bits an add), 219.2-252.1 with each
 add in halves; the pipeline's 151.5-187.3 are its own logic's.
 
 It computes nothing of the digitizer's (its values are only kept live, so that synthesis
