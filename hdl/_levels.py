@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import re
 import sys
+from collections import Counter
 from pathlib import Path
 
 __all__ = ["FF_INPUTS", "FREE_INPUTS", "SEQUENTIAL", "deepest", "deepest_path", "logic_levels",
@@ -223,11 +224,9 @@ def depth_by_module(levels: dict[str, int], parts: int) -> dict[str, dict[int, i
     """
     if parts < 1:
         raise ValueError(f"parts must be at least 1, not {parts!r}")
-    out: dict[str, dict[int, int]] = {}
+    out: dict[str, Counter] = {}
     for name, lv in levels.items():
-        module = ".".join(name.split(".")[:-1][:parts]) or "(top)"
-        row = out.setdefault(module, {})
-        row[lv] = row.get(lv, 0) + 1
+        out.setdefault(".".join(name.split(".")[:-1][:parts]) or "(top)", Counter())[lv] += 1
     return {m: dict(sorted(row.items())) for m, row in sorted(out.items())}
 
 

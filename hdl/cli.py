@@ -96,16 +96,9 @@ def _synth(args) -> int:
     return 0
 
 
-def _summed(table: dict[str, dict[int, int]]) -> dict[int, int]:
-    """The counts of :func:`hdl._levels.depth_by_module` over every module, by depth."""
-    total: dict[int, int] = {}
-    for row in table.values():
-        for lv, n in row.items():
-            total[lv] = total.get(lv, 0) + n
-    return dict(sorted(total.items()))
-
-
 def _levels(args) -> int:
+    from collections import Counter
+
     from ._levels import deepest, depth_by_module
     from .synth import levels
 
@@ -125,7 +118,8 @@ def _levels(args) -> int:
         if args.json:
             print(json.dumps(table, indent=1))
             return 0
-        for module, row in [*table.items(), ("all", _summed(table))]:
+        every = sum((Counter(row) for row in table.values()), Counter())
+        for module, row in [*table.items(), ("all", dict(sorted(every.items())))]:
             counts = "  ".join(f"{lv}: {n}" for lv, n in row.items())
             deep = sum(n for lv, n in row.items() if lv >= 2)
             print(f"{module:<28} two or more deep: {deep:4d}   {counts}")
