@@ -25,8 +25,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-__all__ = ["FF_INPUTS", "FREE_INPUTS", "SEQUENTIAL", "deepest", "deepest_path", "logic_levels",
-           "top_module"]
+__all__ = ["FF_INPUTS", "FREE_INPUTS", "SEQUENTIAL", "cell_register", "deepest", "deepest_path",
+           "logic_levels", "top_module"]
 
 #: Cells whose outputs start a path (registers, memories, DSP blocks with their registers).
 SEQUENTIAL = frozenset({"TRELLIS_FF", "DP16KD", "MULT18X18D", "TRELLIS_DPR16X4", "ALU54B"})
@@ -63,6 +63,25 @@ def top_module(netlist: dict) -> dict:
 _MADE = ("_LUT4_", "_CCU2C", "_TRELLIS_", "_DPR16X4", "$")
 
 
+def cell_register(name: str) -> str:
+    """A cell's name without the suffixes Yosys and nextpnr add to a register's name
+    (``core.engine0.filter.k_ev_TRELLIS_FF_Q_3`` -> ``core.engine0.filter.k_ev``): the name
+    nextpnr's timing report gives a flip-flop's register, and the one a flip-flop with no
+    public net name is reported under here."""
+    for mark in ("_TRELLIS", "$CCU2", "_LUT4", "_CCU2C", "_DP16KD", "_MULT18X18D"):
+        if mark in name:
+            name = name[:name.index(mark)]
+    return name
+
+
+def _library(attributes: dict) -> bool:
+    """Whether a net was made inside a cell library's techmap (``src`` in Yosys's share
+    directory, e.g. ``/share/lattice/cells_map_trellis.v``): a LUT RAM's ``DO`` bus is one, and
+    its name lands on whatever bits the RAM's ports were wired to, flip-flops of the output
+    buffer among them (one register was counted as sixteen ``obuf.*_DO`` before this)."""
+    return str(attributes.get("src", "")).startswith("/share/")
+
+
 def _public(net: str) -> bool:
     """Whether a net's name is an RTL signal's (``core.detect.cand_at9``), not one Amaranth
     or Yosys made up (``$signal$50``, ``\\$129``, ``obuf.0.2_DO_LUT4_Z_D``)."""
@@ -86,7 +105,7 @@ class _Cones:
                             self.driver[bit] = name
         self.names: dict[int, list[str]] = {}
         for net, v in nets.items():
-            if not _public(net):
+            if not _public(net) or _library(v.get("attributes", {})):
                 continue
             for bit in v["bits"]:
                 if isinstance(bit, int):
@@ -135,10 +154,12 @@ class _Cones:
         """``(public names, timed input bits)`` of each register whose name ``match`` finds:
         its data, clock enable and set/reset inputs (:data:`FF_INPUTS`)."""
         pattern = re.compile(match)
-        for c in self.cells.values():
+        for name, c in self.cells.items():
             if c["type"] != "TRELLIS_FF":
                 continue
-            hit = [n for n in self.names.get(c["connections"]["Q"][0], [])
+            # a flip-flop with no public name (an Amaranth signal left unnamed, `$signal$49`)
+            # still counts: it is reported under its cell's name, as nextpnr reports it
+            hit = [n for n in self.names.get(c["connections"]["Q"][0], [cell_register(name)])
                    if pattern.search(n)]
             if hit:
                 yield hit, [b for port in FF_INPUTS for b in c["connections"].get(port, [])

@@ -35,7 +35,7 @@ from amaranth.hdl import Elaboratable, Signal
 
 from ._ceiling import Ceiling
 from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
-from ._levels import deepest_path, logic_levels
+from ._levels import cell_register, deepest_path, logic_levels
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "failing_endpoints", "figure_key", "levels", "missing_on",
            "record_figures", "synth_all", "synth_components", "synthesize"]
@@ -458,15 +458,6 @@ def levels(name: str, params: dict | None = None, context: str = "out",
         return logic_levels(netlist, match)
 
 
-def _register(name: str) -> str:
-    """A cell's name without the suffixes Yosys and nextpnr add to a register's name
-    (``core.engine0.filter.k_ev_TRELLIS_FF_Q_3`` -> ``core.engine0.filter.k_ev``)."""
-    for mark in ("_TRELLIS", "$CCU2", "_LUT4", "_CCU2C", "_DP16KD", "_MULT18X18D"):
-        if mark in name:
-            name = name[:name.index(mark)]
-    return name
-
-
 def worst_path(report: dict) -> dict | None:
     """The worst register-to-register path of nextpnr's ``--report`` JSON, summed up.
 
@@ -492,8 +483,8 @@ def worst_path(report: dict) -> dict | None:
     total, steps = best
     return {"ns": round(total, 2),
             "routing_ns": round(sum(st["delay"] for st in steps if st["type"] == "routing"), 2),
-            "from": _register(steps[0]["from"]["cell"]),
-            "to": _register(steps[-1]["to"]["cell"]),
+            "from": cell_register(steps[0]["from"]["cell"]),
+            "to": cell_register(steps[-1]["to"]["cell"]),
             "logic_steps": sum(st["type"] == "logic" for st in steps)}
 
 
@@ -528,10 +519,11 @@ def failing_endpoints(report: dict, period_ns: float,
     -------
     dict or None
         ``endpoints``: how many endpoints (one per flip-flop, block or LUT RAM input port) have
-        negative slack; ``registers``: how many registers (cells without the suffixes Yosys and
-        nextpnr add, :func:`_register`) they belong to; ``worst``: up to ``worst`` of those
-        registers, the most negative first, each ``{"register", "slack_ns", "endpoints"}``.
-        None when the report has no detailed timing (nextpnr run without the option).
+        negative slack; ``registers``: how many registers (cells without the suffixes Yosys
+        and nextpnr add, :func:`hdl._levels.cell_register`) they belong to; ``worst``: up to
+        ``worst`` of those registers, the most negative first, each ``{"register", "slack_ns",
+        "endpoints"}``. None when the report has no detailed timing (nextpnr run without
+        the option).
     """
     nets = report.get("detailed_net_timings")
     if nets is None:
@@ -551,7 +543,7 @@ def failing_endpoints(report: dict, period_ns: float,
     for (cell, _port), d in arrival.items():
         slack = period_ns - d
         if slack < 0:
-            by_register.setdefault(_register(cell), []).append(slack)
+            by_register.setdefault(cell_register(cell), []).append(slack)
     ranked = sorted(by_register.items(), key=lambda kv: min(kv[1]))
     return {"endpoints": sum(len(v) for v in by_register.values()),
             "registers": len(by_register),

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from firmware_host.cli import main
-from hdl._levels import deepest_path, depth_by_module, logic_levels, top_module
+from hdl._levels import cell_register, deepest_path, depth_by_module, logic_levels, top_module
 
 
 class _Net:
@@ -14,10 +14,10 @@ class _Net:
     def __init__(self):
         self.cells, self.nets, self.bit = {}, {}, 1
 
-    def wire(self, name=None):
+    def wire(self, name=None, src="top.v:1"):
         self.bit += 1
         if name:
-            self.nets[name] = {"bits": [self.bit]}
+            self.nets[name] = {"bits": [self.bit], "attributes": {"src": src}}
         return self.bit
 
     def cell(self, name, kind, ins: dict, outs: dict):
@@ -27,9 +27,10 @@ class _Net:
             "connections": {p: [b] for p, b in {**ins, **outs}.items()}}
 
     def ff(self, name, d, **pins):
-        """A flip-flop; ``pins`` its other inputs (``CE``, ``LSR``)."""
+        """A flip-flop, its cell named as Yosys names one; ``pins`` its other inputs (``CE``,
+        ``LSR``)."""
         q = self.wire(name)
-        self.cell(f"{name}_FF", "TRELLIS_FF", {"DI": d, "CLK": "0", **pins}, {"Q": q})
+        self.cell(f"{name}_TRELLIS_FF_Q", "TRELLIS_FF", {"DI": d, "CLK": "0", **pins}, {"Q": q})
         return q
 
     def lut(self, name, *ins):
@@ -60,10 +61,33 @@ def test_luts_and_chains_counted_carry_hops_free():
     s3 = n.wire()
     n.cell("ch3", "CCU2C", {"A0": n.lut("l3", s2), "CIN": n.wire()}, {"S0": s3, "COUT": n.wire()})
     n.ff("d", s3)
-    n.ff("$made", n.lut("l4", a))  # a made-up name: not reported
     got = logic_levels(n.json())
     assert got == {"a": 0, "b": 2, "c": 1, "d": 3}
     assert logic_levels(n.json(), "^[bd]$") == {"b": 2, "d": 3}
+
+
+def test_every_flip_flop_counted_by_its_rtl_name():
+    """A flip-flop with only made-up names is still counted, under its cell's name as nextpnr
+    reports it; a net a cell library's techmap made (a LUT RAM's ``DO`` bus, whose name Yosys
+    puts on the bits wired to the RAM) names no register."""
+    n = _Net()
+    a = n.ff("a", n.wire("pin"))
+    # Amaranth's name for an unnamed signal, then a made-up net beside it
+    q = n.ff("top.$signal$49", n.lut("l1", n.lut("l0", a)))
+    n.nets["top.obuf.0.0_DO"] = {"bits": [q, a],
+                                 "attributes": {"src": "/share/lattice/cells_map_trellis.v:1"}}
+    n.nets["top.obuf_LUT4_Z"] = {"bits": [q], "attributes": {}}
+    got = logic_levels(n.json())
+    assert got == {"a": 0, "top.$signal$49": 2}
+    assert [s["cell"] for s in deepest_path(n.json(), "top.$signal$49")] == \
+        ["a_TRELLIS_FF_Q", "l0", "l1", "top.$signal$49"]
+
+
+def test_cell_register():
+    assert cell_register("core.engine0.filter.k_ev_TRELLIS_FF_Q_3") == "core.engine0.filter.k_ev"
+    assert cell_register("core.stitch.$signal$49_TRELLIS_FF_Q") == "core.stitch.$signal$49"
+    assert cell_register("core.mem_DP16KD") == "core.mem"
+    assert cell_register("core.plain") == "core.plain"
 
 
 def test_enable_and_reset_paths_count():
@@ -80,7 +104,7 @@ def test_enable_and_reset_paths_count():
     got = logic_levels(n.json())
     assert got == {"a": 0, "loaded": 2, "cleared": 3, "enabled": 1}
     assert [s["cell"] for s in deepest_path(n.json(), "cleared")] == \
-        ["a_FF", "r1", "r2", "r3", "cleared"]
+        ["a_TRELLIS_FF_Q", "r1", "r2", "r3", "cleared"]
 
 
 def test_wide_muxes_data_free_select_counted():
@@ -104,7 +128,7 @@ def test_wide_muxes_data_free_select_counted():
     assert logic_levels(n.json(), "^[ws]$") == {"w": 1, "s": 3}
     path = deepest_path(n.json(), "s")
     assert [(st["cell"], st["levels"]) for st in path] == [
-        ("a_FF", 0), ("lsel0", 1), ("lsel", 2), ("l6s", 3), ("s", 3)]
+        ("a_TRELLIS_FF_Q", 0), ("lsel0", 1), ("lsel", 2), ("l6s", 3), ("s", 3)]
     assert path[0]["net"] == "a" and path[0]["type"] == "TRELLIS_FF"
     with pytest.raises(ValueError, match="no register named 'nothere' in the netlist"):
         deepest_path(n.json(), "nothere")
@@ -137,7 +161,7 @@ def test_command_on_yosys_netlist(capsys):
     got = json.loads(capsys.readouterr().out)
     # the stitch's registers are there, by their RTL names, none past a few levels
     assert "operand_q" in got and all(0 <= v <= 8 for v in got.values())
-    assert not [n for n in got if "$" in n or "_LUT4_" in n]
+    assert not [n for n in got if "_LUT4_" in n or "_DO" in n or "_TRELLIS" in n]
     assert main(["hdl", "levels", "--component", "albcap_stitch", "--match", "^operand_q$",
                  "--top", "1"]) == 0
     line = capsys.readouterr().out.strip()
