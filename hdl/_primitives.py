@@ -22,7 +22,7 @@ from ._bram import DEEPEST, BlockRAM
 
 __all__ = ["RAM_DELAY_MIN", "OneHotFSM", "RegisterSlice", "_Store", "_delay", "_delay_to", "_le",
            "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub_sign", "_sum_tree",
-           "register_slice"]
+           "_thermometer_next", "register_slice"]
 
 
 #: Entries of the output buffer of a :class:`_Store` read free (``free_read``), counting those
@@ -429,11 +429,35 @@ class _Store(wiring.Component):
         return take, take_c, ~empty & ~room
 
 
-def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None):
+def _thermometer_next(t, up, down, up_top=None):
+    """The next value of a count kept as a thermometer, ``t[i]`` = "more than ``i``", stepped
+    by one-bit ``up`` and ``down``: a list of ``len(t)`` expressions.
+
+    Bit ``i`` moves to its neighbour's value (``t[i - 1]`` up, ``t[i + 1]`` down, one past the
+    ends) or stays: a function of three bits of the register and the two steps, one LUT where
+    a binary count's step and its decoded flags were two or three (a carry chain or a decode,
+    then the handshake's choice). ``up_top`` (default ``up``) is the up step of the top bit
+    alone: an admission that never counts past ``len(t)`` gives the other bits its request
+    without the "not full" that makes it an acceptance (below the top, a bit that moves up
+    has the count below ``len(t) - 1``, where the two agree), which keeps one input fewer.
+    """
+    up_top = up if up_top is None else up_top
+    n = len(t)
+    out = []
+    for i in range(n):
+        below = t[i - 1] if i else Const(1)
+        above = t[i + 1] if i + 1 < n else Const(0)
+        u = up_top if i == n - 1 else up
+        out.append(Mux(u & ~down, below, Mux(down & ~u, above, t[i])))
+    return out
+
+
+def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None,
+                   valid_ahead=None):
     """The output buffer of ``capacity`` beats behind a free-running pipeline's last stage
     ``pipe`` (the matched filter's, the stitch's): a FIFO in LUT RAM (``capacity`` rounded up
     to a power of two) whose head is also kept in a register, bypassed when empty.
-    ``o.payload`` is the head register or ``pipe`` and ``o.valid`` an OR of two registers.
+    ``o.payload`` is the head register or ``pipe``.
 
     The caller guarantees that fewer than ``capacity`` beats are held whenever ``pipe_valid``
     is high (the pipeline's beat counts against the same admission bound).
@@ -445,6 +469,9 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None):
     on them (the detector on ``first`` and ``last``) reads a flip-flop beside it, not the
     mux's select, which fans out to the whole payload (``any_held`` -> the payload mux -> the
     detector's tag match was the pipeline's worst path, 7.61 ns, 2.6 of it the select's net).
+
+    ``valid_ahead`` (optional) is ``pipe_valid``'s next value in the same way; ``o.valid``
+    is then a register (``obuf_valid``), else the OR of ``pipe_valid`` and "any held".
     """
     # The buffer was 16 register entries that moved down one at every pop, each entry's
     # select made from the `o` handshake: the pipeline's `valid` -> push/pop -> the selects of
@@ -464,18 +491,23 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None):
     m.submodules.obuf = ram
     wp = ram.write_port()
     rp = ram.read_port(domain="comb")
-    w_ptr, r_next = Signal(range(size)), Signal(range(size), init=1)
+    w_ptr = Signal(range(size), name="obuf_w_ptr")
+    r_next = Signal(range(size), init=1, name="obuf_r_next")
     head = Signal.like(pipe, name="obuf_head")
-    held = Signal(range(capacity + 1))  # entries in use
-    any_held = Signal()  # held != 0
+    # The entries in use as a thermometer (`held[i]`: more than i; _thermometer_next): each
+    # flag the head and the pointers decide on is then a register of its own. Kept as a
+    # binary count with "== 1" decoded or registered beside it, every decision was a LUT of
+    # the count's compares and then one of the handshake (two levels; the stitch's and the
+    # stores' deepest registers, forty-ninth session).
+    held = [Signal(name=f"obuf_held{i}") for i in range(capacity)]
+    any_held, two_plus = held[0], held[1] if capacity > 1 else Const(0)
     # `any_held` again, inverted (so that synthesis keeps both): the select of the payload
     # mux, whose fan-out to every payload bit kept `any_held` far from the handshake's logic
     # (its first hop, 1.2 ns, began the pipeline's worst path in one seed)
-    show_pipe = Signal(init=1)
+    show_pipe = Signal(init=1, name="show_pipe")
     m.d.comb += [
         wp.addr.eq(w_ptr), wp.data.eq(pipe), wp.en.eq(pipe_valid),
         rp.addr.eq(r_next),
-        o.valid.eq(any_held | pipe_valid),
         o.payload.eq(Mux(show_pipe, pipe, head)),
     ]
     # The handshake enters as `o.ready` alone, not as the take `o.valid & o.ready`: with the
@@ -487,42 +519,32 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None):
     take = o.ready
     pop = take & any_held  # the head leaves
     push = pipe_valid & ~(take & ~any_held)  # the pipeline's beat is kept
-    # No arithmetic after the handshake: the count is decoded from its register, and the
-    # handshake only chooses between decoded flags and values made from the registers.
-    # "held == 1" is a register of its own, its next value chosen among the count's compares
-    # (held == 1 as decoded, the count's 5-bit compare, was two of the five LUTs from
-    # `any_held` to the markers shown ahead, the pipeline's worst path in one seed, 7.08 ns);
-    # "held == 0" is ~any_held.
-    held_is0, held_is1 = ~any_held, Signal()
-    m.d.sync += held_is1.eq(Mux(push & ~pop, held == 0,
-                                Mux(pop & ~push, held == 2, held == 1)))
-    w_up, r_up = Signal.like(w_ptr), Signal.like(r_next)
-    held_up, held_down = Signal.like(held), Signal.like(held)
-    m.d.comb += [w_up.eq(w_ptr + 1), r_up.eq(r_next + 1),
-                 held_up.eq(held + 1), held_down.eq(held - 1)]
-    # The head after this clock: the entry after it at a pop (in the RAM when two or more are
-    # held, else the pipeline's beat, kept by this push), the pipeline's beat when the buffer
-    # is empty (kept or not: unused then), else unchanged; and whether anything is held then.
-    # Both worked out for a take (a pop when anything is held) and for none, each from
-    # registers and the RAM's read, the take only choosing: the handshake -> the pop -> the
+    held_nx = _thermometer_next(held, push, pop)
+    # Whether anything is held after this clock, for a take (a pop when anything is held)
+    # and for none, from registers, the take only choosing: the handshake -> the pop -> the
     # head's select and enable was the pipeline's worst path in all three seeds of run 31
     # (7.3-7.7 ns).
-    def after(taken: bool):
-        pop_t = any_held if taken else Const(0)
-        push_t = pipe_valid & any_held if taken else pipe_valid
-        held_t = push_t | (~held_is0 & ~held_is1) | (held_is1 & ~pop_t)
-        head_t = Mux(held_is0 | (pop_t & held_is1), pipe, Mux(pop_t, rp.data, head))
-        return held_t, head_t
-    (held_tk, head_tk), (held_no, head_no) = after(True), after(False)
-    held_nx = Mux(take, held_tk, held_no)
+    held_tk = (pipe_valid & any_held) | two_plus
+    held_no = pipe_valid | any_held
+    # The head after this clock: at a take, the entry after it (in the RAM when two or more
+    # are held, else the pipeline's beat, kept by this push, or unused); with none, the head
+    # while one is held, else the pipeline's beat (kept or not: unused then). A function of
+    # the take, two flags and the three values: one LUT per bit.
+    head_tk = Mux(two_plus, rp.data, pipe)
+    head_no = Mux(any_held, head, pipe)
     m.d.sync += [
         head.eq(Mux(take, head_tk, head_no)),
-        w_ptr.eq(Mux(push, w_up, w_ptr)),
-        r_next.eq(Mux(pop, r_up, r_next)),
-        held.eq(Mux(push & ~pop, held_up, Mux(pop & ~push, held_down, held))),
-        any_held.eq(held_nx),
-        show_pipe.eq(~held_nx),
+        w_ptr.eq(Mux(push, w_ptr + 1, w_ptr)),
+        r_next.eq(Mux(pop, r_next + 1, r_next)),
+        *(h.eq(nx) for h, nx in zip(held, held_nx, strict=True)),
+        show_pipe.eq(~held_nx[0]),
     ]
+    if valid_ahead is None:
+        m.d.comb += o.valid.eq(any_held | pipe_valid)
+    else:
+        valid = Signal(name="obuf_valid")
+        m.d.sync += valid.eq(held_nx[0] | valid_ahead)
+        m.d.comb += o.valid.eq(valid)
     # The fields shown ahead: what the head-or-pipe mux shows next, the take choosing as for
     # the head (through the take into the pop, the head's and the count's next values and
     # then the mux, `any_held` -> the consumer's ready -> `obuf_first` was the pipeline's

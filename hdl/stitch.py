@@ -22,20 +22,20 @@ other operands; one pipeline, one timing path, both modes tested through it.
 
 from __future__ import annotations
 
-from amaranth.hdl import Module, Mux, Signal, signed
+from amaranth.hdl import Const, Module, Mux, Signal, signed
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.stitch import CODE_MAX, RATIO_FRAC, STITCH_WIDTH
 
-from ._primitives import _fills, _output_buffer, _step
+from ._primitives import _output_buffer, _sub_sign, _thermometer_next
 from .layouts import CODES, STITCHED, config_signature
 from .matched_filter import RegisteredMultiplier
 
 __all__ = ["CAPACITY", "LATENCY", "Stitch"]
 
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
-LATENCY = 6
+LATENCY = 7
 #: Samples accepted and not yet taken at the output, at most: ``i.ready`` is low while this
 #: many are inside. The pipeline sizes the ring beside the stitch by it.
 CAPACITY = LATENCY + 1
@@ -62,9 +62,10 @@ class Stitch(wiring.Component):
 
     Notes
     -----
-    Latency: :data:`LATENCY` = 6 clocks (the saturation compares registered, the channel
-    choice registered, the multiplier's operands registered, product registered, the output
-    saturation compares and rounded bits registered, the output registered): the multiplier
+    Latency: :data:`LATENCY` = 7 clocks (the codes and the registers registered, the
+    saturation compares and the three operands registered, the channel choice registered, the
+    multiplier's operands registered, product registered, the output saturation compares and
+    rounded bits registered, the output registered): the multiplier
     is a :class:`~hdl.matched_filter.RegisteredMultiplier`, an ECP5 ``MULT18X18D`` with its
     own input and output registers when synthesized for one. Throughput: one sample per clock
     while ``o.ready`` is high.
@@ -90,91 +91,100 @@ class Stitch(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         cfg, d = self.cfg, self.i.payload
-        # Admission: `inside` counts samples accepted and not yet taken; `full` (a register)
-        # is "CAPACITY inside after this clock", chosen by the handshakes among flags decoded
-        # from the count. A stall as a clock enable (`o.ready | ~o.valid` to every register
+        # Admission: `inside` counts samples accepted and not yet taken, as a thermometer
+        # (`inside[j]`: more than j), and `i.ready` is a register, "fewer than CAPACITY inside
+        # after this clock". A stall as a clock enable (`o.ready | ~o.valid` to every register
         # and the DSP) put the consumer's handshake in front of the whole stage, and in the
         # pipeline the side FIFO's read flag -> that enable -> the side FIFO's write was the
-        # worst path (6.80 ns, 5.1 of it routing).
-        accept, take = Signal(), Signal()
-        inside = Signal(range(CAPACITY + 1))
-        full = Signal()
-        m.d.comb += [self.i.ready.eq(~full), accept.eq(self.i.valid & ~full),
+        # worst path (6.80 ns, 5.1 of it routing). Each bit's next value is one LUT of three
+        # of its bits, the request, the readiness and the output's valid and ready, all
+        # registers (`o.valid` is the output buffer's register): as a binary count with flags
+        # decoded from it, `inside` and `full` were two levels deep (forty-ninth session).
+        inside = [Signal(name=f"inside{j}") for j in range(CAPACITY)]
+        ready = Signal(init=1, name="ready")
+        accept, take = Signal(name="accept"), Signal(name="take")
+        m.d.comb += [self.i.ready.eq(ready), accept.eq(self.i.valid & ready),
                      take.eq(self.o.valid & self.o.ready)]
-        at_cap, below_cap = inside == CAPACITY, inside == CAPACITY - 1
-        m.d.sync += [
-            inside.eq(_step(inside, accept, take)),
-            full.eq(_fills(at_cap, below_cap, accept, take)),
-        ]
+        inside_nx = _thermometer_next(inside, self.i.valid, take, up_top=accept)
+        m.d.sync += [*(b.eq(nx) for b, nx in zip(inside, inside_nx, strict=True)),
+                     ready.eq(~inside_nx[-1])]
 
-        # Stage 0: the saturation compares on the incoming codes, registered with the codes and
-        # the registers the choice reads (so a register write still acts on the samples
-        # accepted from the next clock on). Stage 0b: the channel choice and its operands,
-        # registered. The compares, the choice and the subtraction into the multiplier in one
-        # clock were the stitch's worst path in context (8.56 ns, 116.8 MHz; the stitch alone:
-        # 137.6 MHz); the compares and the choice in one, from the pipeline's input register
-        # (a carry chain, then the choice into the ratio register's set/reset pins) were the
-        # pipeline's worst path with nextpnr seed 2 (7.38 ns, 135.5 MHz).
+        # Stage 0: the codes and the registers the choice reads, registered together as the
+        # sample is accepted (so a register write acts on the samples accepted from the next
+        # clock on), each register already in the form its use takes: the saturation
+        # threshold of the mode, each channel's offset (its baseline, or in paper mode the
+        # place of its range below the high channel's) and ratio (unity in paper mode).
         paper = cfg.stitch_mode == 0
-        t = Mux(paper, CODE_MAX, cfg.sat_threshold)
-        # Each channel's offset (its baseline, or in paper mode the place of its range below
-        # the high channel's) is chosen here too, so that stage 0b's operand is a subtraction
-        # of two registers: the mode's mux before the carry chain was the stitch's worst path
-        # alone (s0 -> operand_q, 5.33 ns, 187.7 MHz).
+        unity = 1 << RATIO_FRAC
         offsets = {"h": ("baseline_h", 0), "m": ("baseline_m", -CODE_MAX),
                    "l": ("baseline_l", -2 * CODE_MAX)}
         offset = signed(10)  # -2 * CODE_MAX .. CODE_MAX
-        held = data.StructLayout({"codes": CODES, "h_ok": 1, "m_ok": 1, "paper": 1,
-                                  "ratio_m_q8": cfg.ratio_m_q8.shape(),
-                                  "ratio_l_q8": cfg.ratio_l_q8.shape(),
+        ratio_shape = cfg.ratio_m_q8.shape()
+        held = data.StructLayout({"codes": CODES, "threshold": cfg.sat_threshold.shape(),
+                                  "ratio_m": ratio_shape, "ratio_l": ratio_shape,
                                   **{f"off_{c}": offset for c in offsets}})
-        s0 = Signal(held)
-        v00 = Signal()
-        m.d.sync += [s0.codes.eq(d), s0.h_ok.eq(d.h < t), s0.m_ok.eq(d.m < t),
-                     s0.paper.eq(paper), v00.eq(accept),
-                     s0.ratio_m_q8.eq(cfg.ratio_m_q8), s0.ratio_l_q8.eq(cfg.ratio_l_q8),
+        s0 = Signal(held, name="s0")
+        v0 = Signal(name="v0")
+        m.d.sync += [s0.codes.eq(d), s0.threshold.eq(Mux(paper, CODE_MAX, cfg.sat_threshold)),
+                     s0.ratio_m.eq(Mux(paper, unity, cfg.ratio_m_q8)),
+                     s0.ratio_l.eq(Mux(paper, unity, cfg.ratio_l_q8)), v0.eq(accept),
                      *(getattr(s0, f"off_{c}").eq(Mux(paper, paper_off, getattr(cfg, base)))
                        for c, (base, paper_off) in offsets.items())]
-        h_ok, m_ok, paper = s0.h_ok, s0.m_ok, s0.paper
-        unity = 1 << RATIO_FRAC
-        # The multiplier's operand `code - offset` is made here, in the choice's clock, for
-        # each channel from registers (a carry chain each), the choice then picking one: as
-        # one subtraction behind the choice's registers it was the only logic before the DSP
-        # block's input register, and the pipeline's worst path in a seed (7.73 ns, 4.7 of it
-        # the route from the offset's register to the carry chain).
-        operand = Mux(h_ok, s0.codes.h - s0.off_h,
-                      Mux(m_ok, s0.codes.m - s0.off_m, s0.codes.l - s0.off_l))
-        ratio = Mux(paper | h_ok, unity, Mux(m_ok, s0.ratio_m_q8, s0.ratio_l_q8))
-        operand_q = Signal(_OPERAND)
-        ratio_q = Signal(ratio.shape())
-        v0 = Signal()
-        m.d.sync += [operand_q.eq(operand), ratio_q.eq(ratio), v0.eq(v00)]
 
-        # Stages 1 and 2: the multiplier's operand and product registers (the DSP block's own
+        # Stage 1: the saturation compares, each the sign of a subtraction of two registers
+        # (one carry chain), and each channel's operand `code - offset` (one each), beside
+        # them. The compares, the choice and the subtraction into the multiplier in one clock
+        # were the stitch's worst path in context (8.56 ns, 116.8 MHz); the compare against a
+        # threshold chosen by the mode in the same clock was three levels (a LUT, the chain,
+        # a LUT), the operand's subtraction before the choice two, and the pipeline's worst
+        # path in a seed (7.73 ns, 4.7 of it the route from the offset's register to the
+        # carry chain).
+        h_ok, m_ok = Signal(name="h_ok"), Signal(name="m_ok")
+        ops = {c: Signal(_OPERAND, name=f"op_{c}") for c in offsets}
+        ratio_m, ratio_l = Signal(ratio_shape, name="ratio_m"), Signal(ratio_shape,
+                                                                     name="ratio_l")
+        v1 = Signal(name="v1")
+        m.d.sync += [
+            h_ok.eq(_sub_sign(m, s0.codes.h, s0.threshold, "h_ok")),
+            m_ok.eq(_sub_sign(m, s0.codes.m, s0.threshold, "m_ok")),
+            *(ops[c].eq(getattr(s0.codes, c) - getattr(s0, f"off_{c}")) for c in offsets),
+            ratio_m.eq(s0.ratio_m), ratio_l.eq(s0.ratio_l), v1.eq(v0),
+        ]
+
+        # Stage 2: the channel's operand and ratio chosen (one LUT per bit: two flags and
+        # three values), registered as the multiplier's operands.
+        operand_q = Signal(_OPERAND, name="operand_q")
+        ratio_q = Signal(ratio_shape, name="ratio_q")
+        v2 = Signal(name="v2")
+        m.d.sync += [operand_q.eq(Mux(h_ok, ops["h"], Mux(m_ok, ops["m"], ops["l"]))),
+                     ratio_q.eq(Mux(h_ok, unity, Mux(m_ok, ratio_m, ratio_l))), v2.eq(v1)]
+
+        # Stages 3 and 4: the multiplier's operand and product registers (the DSP block's own
         # on an ECP5, see RegisteredMultiplier).
         mul = m.submodules.mul = RegisteredMultiplier(_OPERAND, signed(17))
         m.d.comb += [mul.a.eq(operand_q), mul.b.eq(ratio_q), mul.ce.eq(1)]
-        p2 = mul.p
-        v1, v2, v3, v4 = Signal(), Signal(), Signal(), Signal()
-        # Stage 3: the saturation compares and the rounded low bits, registered (the DSP
+        p4 = mul.p
+        v3, v4, v5, v6 = (Signal(name=f"v{j}") for j in range(3, 7))
+        # Stage 5: the saturation compares and the rounded low bits, registered (the DSP
         # block's output reaches the fabric late). The compares look at the product itself,
-        # (p + h) >> f > hi being p >= ((hi + 1) << f) - h, so the rounding add only needs the
-        # product's low bits and runs beside them. Stage 4: the last register, then the output
-        # buffer.
+        # (p + h) >> f > hi being p >= ((hi + 1) << f) - h, each the sign of a subtraction
+        # (one carry chain; as compares they were a chain and a LUT), so the rounding add
+        # only needs the product's low bits and runs beside them. Stage 6: the saturated
+        # value, registered, then the output buffer.
         f, h = RATIO_FRAC, 1 << (RATIO_FRAC - 1)
         lo, hi = -(1 << (STITCH_WIDTH - 1)), (1 << (STITCH_WIDTH - 1)) - 1
-        over, under = Signal(), Signal()
-        low = Signal(STITCH_WIDTH)
-        pipe = Signal(STITCHED)
+        in_range, under = Signal(name="in_range"), Signal(name="under")
+        low = Signal(STITCH_WIDTH, name="low")
+        pipe = Signal(STITCHED, name="pipe")
         m.d.sync += [
-            v1.eq(v0),
-            v2.eq(v1),
-            over.eq(p2 >= ((hi + 1) << f) - h),
-            under.eq(p2 < (lo << f) - h),
-            low.eq((p2[:STITCH_WIDTH + f] + h)[f:STITCH_WIDTH + f]),
             v3.eq(v2),
-            pipe.eq(Mux(over, hi, Mux(under, lo, low))),
             v4.eq(v3),
+            in_range.eq(_sub_sign(m, p4, Const(((hi + 1) << f) - h), "in_range")),
+            under.eq(_sub_sign(m, p4, Const((lo << f) - h), "under")),
+            low.eq((p4[:STITCH_WIDTH + f] + h)[f:STITCH_WIDTH + f]),
+            v5.eq(v4),
+            pipe.eq(Mux(~in_range, hi, Mux(under, lo, low))),
+            v6.eq(v5),
         ]
-        _output_buffer(m, self.o, CAPACITY, pipe, v4)
+        _output_buffer(m, self.o, CAPACITY, pipe, v6, valid_ahead=v5)
         return m
