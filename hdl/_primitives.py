@@ -339,28 +339,40 @@ class _Store(wiring.Component):
         with m.If(take):
             m.d.sync += r_ptr.eq(r_ptr + 1)
         # The entries in the memory are counted a clock late: `count1` is the last clock's
-        # count, stepped by that clock's moves `up` and `down` (registers), so that no late
-        # input (the writer's keep, the port's ready) reaches the count's enables: as a step
-        # by keep and take_c, r.ready -> take_c -> the enables of the packetizer FIFO's count
-        # was the one-lane pipeline's worst path on seed 3 (6.31 ns, 5.1 of it routing,
-        # thirty-eighth session). "Not empty" is decided from min(count, 3) of the last clock
-        # (`was`, a register made from count1 and the moves) and that clock's move: this
-        # clock's count is >= 2 if the last was >= 1 and one came in, >= 3 and one left, or
-        # >= 2 and neither, one LUT of four registers. As the sign of count - 2 (a chain from
-        # the count register, then two LUTs) it was the one-lane pipeline's worst path on seed
-        # 2 of the thirty-seventh session, the packetizer FIFO's count -> ne, 6.70 ns.
-        up = _reg(m, keep & ~take_c, 1, "was_up")
-        down = _reg(m, take_c & ~keep, 1, "was_down")
-        count1 = Signal(range(self.depth + 1))
-        m.d.sync += count1.eq(_step(count1, up, down))
-
-        def min3(ge3, low):  # min(c, 3) from "c >= 3" and c's two low bits
-            return Mux(ge3, 3, low)  # (at c = 3 both give 3: "c >= 4" would do as well)
-
-        was = _reg(m, Mux(up, min3(_le(2, count1), (count1 + 1)[:2]),
-                          Mux(down, min3(_le(4, count1), (count1 - 1)[:2]),
-                              min3(_le(3, count1), count1[:2]))), 2, "was_min3")
-        ge2 = Mux(up, was != 0, Mux(down, was == 3, was[1]))
+        # count, stepped by that clock's moves (registers), so that no late input (the
+        # writer's keep, the port's ready) reaches the count's enables: as a step by keep and
+        # take_c, r.ready -> take_c -> the enables of the packetizer FIFO's count was the
+        # one-lane pipeline's worst path on seed 3 (6.31 ns, 5.1 of it routing, thirty-eighth
+        # session). The moves are registered as the numbers they add, `step_k` = move - k
+        # (k = 0..3), so that each use of the count is one add of two registers, one carry
+        # chain: `count1` steps by `step_0`, and `below_k` (k = 1..3), "the count after this
+        # clock is below k", is the sign of `count1 + step_k`. "Not empty" is decided from
+        # them and this clock's move: this clock's count is >= 2 if the last was >= 1 and one
+        # came in, >= 3 and one left, or >= 2 and neither, one LUT of five registers (two
+        # bits of `step_0` and the three `below_k`).
+        # As a choice among the count's plus and minus one and compares of it (`min(count,
+        # 3)` in two bits), the count was two levels deep and its minimum three, which
+        # missed 200 MHz on every seed of the forty-third session in the packetizer FIFO
+        # (the count -> a carry chain -> `was_min3`, 5.57 ns); as the sign of count - 2 (a
+        # chain from the count register, then two LUTs) it was the one-lane pipeline's worst
+        # path on seed 2 of the thirty-seventh session, the packetizer FIFO's count -> ne,
+        # 6.70 ns.
+        up_nx, down_nx = keep & ~take_c, take_c & ~keep
+        # (each register starts as an empty store's: no move, every `below_k` true)
+        steps = [Signal(signed(4), init=-k, name=f"step_{k}") for k in range(4)]
+        m.d.sync += [st.eq(Mux(up_nx, 1 - k, Mux(down_nx, -1 - k, -k)))
+                     for k, st in enumerate(steps)]
+        count1 = Signal(range(self.depth + 1), name="count1")
+        m.d.sync += count1.eq(count1 + steps[0])
+        below = [None]
+        for k in (1, 2, 3):
+            diff = Signal(signed(len(count1) + 2), name=f"below_{k}_sum")
+            below.append(Signal(init=1, name=f"below_{k}"))
+            m.d.comb += diff.eq(count1 + steps[k])
+            m.d.sync += below[k].eq(diff[-1])
+        down = steps[0][-1]  # the last clock's move: -1
+        up = steps[0][0] & ~down  # +1
+        ge2 = Mux(up, ~below[1], Mux(down, ~below[3], ~below[2]))
         ne_nx = keep | ge2 | stays
         m.d.sync += [ne.eq(ne_nx), empty.eq(~ne_nx)]
         return m
