@@ -246,6 +246,13 @@ def elaborate(top, platform):
     # + c >= W + 2P + 2, i.e. base_in >= need_at[c] (one compare each; the compares on the
     # live beat, after an add, were the worst path twice).
     need_at = [_reg(m, W2P + (2 - L - c), pos, f"need_at{c}", True) for c in range(L + 1)]
+    # For a frame's first beat (base_in 0) that is need_at[c] <= 0, kept inverted in a
+    # register of its own beside need_at[c] (`first_short[c]`: L + c - 2 < W + 2P, a carry
+    # chain's sign): compared in the clock of the port's first, the compare with zero was a
+    # tree of three LUTs before the choice, and `next_needs` missed 200 MHz on every
+    # placement of the forty-third session's netlist.
+    first_short = [_reg(m, _sub_sign(m, Const(L + c - 2, pos), W2P, f"first_short{c}"), 1,
+                        f"first_short{c}", True) for c in range(L + 1)]
     first_needs = [_reg(m, W2P + 2 <= c, 1, f"first_needs{c}", True) for c in range(L + 1)]
     # (each a carry chain's sign: as compares with constants, Yosys shared their LUTs into
     # a tree four levels deep from the register)
@@ -282,7 +289,7 @@ def elaborate(top, platform):
             # add of the port's count after the first's mux, behind the filter's LUT-RAM
             # output, was the pipeline's worst path, 7.45 ns.)
             m.d.sync += [n_next.eq(Mux(d.first, L, n_next + L)),
-                         next_needs.eq(Cat(Mux(d.first, at <= 0,
+                         next_needs.eq(Cat(Mux(d.first, ~first_short[c],
                                                ~_sub_sign(m, n_next, at, f"next_needs{c}"))
                                            for c, at in enumerate(need_at)))]
             with m.If(d.first):
