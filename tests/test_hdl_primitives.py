@@ -6,8 +6,8 @@ conditions, a state with two exits, a state left at once, a state that waits, an
 register written in a state block. Both get the same seeded random inputs; the state and
 the register must agree at every clock, and exactly one flag must be high.
 (``_Store``, the other primitive with state, is tested in ``tests/test_hdl_bram.py``.)
-The admission counters' helpers (``_step``, ``_room``, ``_fills``) are checked against plain
-arithmetic for every count and move.
+The admission counters' helpers (``_step``, ``_room``, ``_fills``, ``_thermometer_next``) are
+checked against plain arithmetic for every count and move.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pytest
 from amaranth.hdl import Elaboratable, Module, Signal
 from amaranth.sim import Simulator
 
-from hdl._primitives import OneHotFSM, _fills, _room, _step
+from hdl._primitives import OneHotFSM, _fills, _room, _step, _thermometer_next
 
 STATES = ("IDLE", "LOAD", "RUN", "DONE")
 
@@ -145,3 +145,40 @@ def test_admission_counter_helpers(cap):
     sim.add_testbench(bench)
     sim.run()
     assert len(seen) == 4 * (cap + 1) - 2 - 1  # every state and move but the two excluded
+
+
+@pytest.mark.parametrize("cap", [1, 2, 3, 8, 16])
+def test_thermometer_next(cap):
+    """``_thermometer_next`` against plain arithmetic: for every count 0..``cap`` and every
+    move, the next thermometer is that of ``count + accepted - down``, where the other bits get
+    the request and only the top bit the acceptance (``up_top``), as the stitch's admission
+    gives them: a request at ``cap`` is not accepted, and nothing leaves an empty count."""
+    m = Module()
+    t = [Signal(name=f"t{i}") for i in range(cap)]
+    request, down = Signal(), Signal()
+    accept = request & ~t[-1]
+    nxt = [Signal(name=f"n{i}") for i in range(cap)]
+    m.d.comb += [n.eq(v) for n, v in zip(nxt, _thermometer_next(t, request, down,
+                                                                   up_top=accept),
+                                          strict=True)]
+    sim = Simulator(m)
+    seen = []
+
+    async def bench(ctx):
+        for c in range(cap + 1):
+            for r in (0, 1):
+                for d in (0, 1):
+                    if d and c == 0:
+                        continue
+                    for i, b in enumerate(t):
+                        ctx.set(b, int(c > i))
+                    ctx.set(request, r)
+                    ctx.set(down, d)
+                    want = c + (r and c < cap) - d
+                    assert [ctx.get(n) for n in nxt] == [int(want > i) for i in range(cap)], \
+                        (c, r, d)
+                    seen.append((c, r, d))
+
+    sim.add_testbench(bench)
+    sim.run()
+    assert len(seen) == 4 * (cap + 1) - 2
