@@ -473,7 +473,10 @@ class FramePacketizer(wiring.Component):
             with m.If(take):
                 # peak frames need no samples; an overlong frame is dropped at its end
                 with m.If(~full):
-                    m.d.sync += [n.eq(n + 1), full.eq(n == self.max_samples - 1)]
+                    # n < max_samples here, so n == max_samples - 1 is n >= max_samples - 1,
+                    # a carry chain's sign: as the equality, a tree of LUTs before the
+                    # state's choice, `full` was four levels deep (forty-ninth session)
+                    m.d.sync += [n.eq(n + 1), full.eq(_le(self.max_samples - 1, n))]
                 with m.Else():
                     m.d.sync += over.eq(1)
                 with m.If(beat.last):
