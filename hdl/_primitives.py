@@ -532,12 +532,6 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None,
     pop = take & any_held  # the head leaves
     push = pipe_valid & ~(take & ~any_held)  # the pipeline's beat is kept
     held_nx = _thermometer_next(held, push, pop)
-    # Whether anything is held after this clock, for a take (a pop when anything is held)
-    # and for none, from registers, the take only choosing: the handshake -> the pop -> the
-    # head's select and enable was the pipeline's worst path in all three seeds of run 31
-    # (7.3-7.7 ns).
-    held_tk = (pipe_valid & any_held) | two_plus
-    held_no = pipe_valid | any_held
     # The head after this clock: at a take, the entry after it (in the RAM when two or more
     # are held, else the pipeline's beat, kept by this push, or unused); with none, the head
     # while one is held, else the pipeline's beat (kept or not: unused then). A function of
@@ -560,7 +554,12 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None,
     # The fields shown ahead: what the head-or-pipe mux shows next, the take choosing as for
     # the head (through the take into the pop, the head's and the count's next values and
     # then the mux, `any_held` -> the consumer's ready -> `obuf_first` was the pipeline's
-    # worst path, 6.73 ns).
+    # worst path, 6.73 ns). Whether anything is held after this clock is worked out for a
+    # take (a pop when anything is held) and for none, from registers, the take only
+    # choosing: the handshake -> the pop -> the head's select and enable was the pipeline's
+    # worst path in all three seeds of run 31 (7.3-7.7 ns).
+    held_tk = (pipe_valid & any_held) | two_plus
+    held_no = pipe_valid | any_held
     for name, nxt in (ahead or {}).items():
         field = getattr(o.payload, name)
         reg = Signal.like(field, name=f"obuf_{name}")
