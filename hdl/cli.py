@@ -60,6 +60,17 @@ def _export(args) -> int:
     return 0
 
 
+def _positive(text: str) -> int:
+    """An argparse type: a positive integer, or an error that names what was given."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"wants a positive integer, not {text!r}")
+    return value
+
+
 def _params(args) -> dict:
     """``--param NAME=VALUE`` options as constructor keywords (integer values)."""
     params = {}
@@ -84,7 +95,7 @@ def _synth(args) -> int:
     if args.static != "pins" and args.context != "in":
         raise SystemExit("--static applies in context only: give --context in")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
-                    args.placer, args.seed, args.static, args.floorplan)
+                    args.placer, args.seed, args.static, args.floorplan, args.jobs)
     if args.out is not None:
         from .synth import record_figures
 
@@ -169,6 +180,9 @@ def register(subparsers) -> None:
                      help="nextpnr's random seed; several (--seed 1 2 3): each placed in turn "
                           "and the lowest kept, with every seed's fmax (one netlist's fmax "
                           "spreads by up to 15 %% between seeds)")
+    syn.add_argument("--jobs", type=_positive, default=1, metavar="N",
+                     help="place up to N of the seeds at once (one core each; the figures are "
+                          "the same, the run shorter)")
 
     syn.add_argument("--context", choices=CONTEXTS, default="out",
                      help="out: the component alone, out of context (its clock on fabric "

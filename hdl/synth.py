@@ -227,6 +227,45 @@ def _run(cmd: list[str], cwd: Path, what: str) -> str:
     return proc.stdout
 
 
+def _run_many(runs: list[tuple[list[str], Path, str]], jobs: int) -> list[float]:
+    """Each ``(cmd, cwd, what)`` of ``runs`` as :func:`_run` runs one, at most ``jobs`` at once;
+    returns each run's seconds, in the order given. Started and waited for from this thread
+    (not a pool's), so that SIGTERM (:func:`_sigterm_raises`) or a failed run kills every
+    tool still running: a stopped many-seed run leaves no nextpnr behind. Each tool's output
+    goes to ``cwd/tool.out`` (a pipe left unread would fill and stall the tool)."""
+    if not (isinstance(jobs, int) and not isinstance(jobs, bool) and jobs >= 1):
+        raise ValueError(f"jobs must be a positive integer, not {jobs!r}")
+    waiting = list(enumerate(runs))
+    running: dict[int, tuple[subprocess.Popen, float, object]] = {}
+    seconds = [0.0] * len(runs)
+    with _sigterm_raises():
+        try:
+            while waiting or running:
+                while waiting and len(running) < jobs:
+                    i, (cmd, cwd, _what) = waiting.pop(0)
+                    out = open(Path(cwd) / "tool.out", "w")  # (closed below, or on exit)
+                    proc = subprocess.Popen(cmd, cwd=cwd, stdout=out, stderr=subprocess.STDOUT)
+                    running[i] = (proc, time.perf_counter(), out)
+                time.sleep(0.2)
+                for i, (proc, t, out) in list(running.items()):
+                    if proc.poll() is None:
+                        continue
+                    out.close()
+                    del running[i]
+                    seconds[i] = time.perf_counter() - t
+                    if proc.returncode != 0:
+                        cmd, cwd, what = runs[i]
+                        lines = (Path(cwd) / "tool.out").read_text(errors="replace")
+                        tail = "\n".join(lines.splitlines()[-15:])
+                        raise RuntimeError(f"{what} failed (exit {proc.returncode}):\n{tail}")
+        finally:
+            for proc, _t, out in running.values():
+                proc.kill()
+                proc.wait()
+                out.close()
+    return seconds
+
+
 def synth_components() -> dict:
     """The components ``albcap hdl synth`` measures: every exported one
     (:data:`hdl.export.COMPONENTS`, ``albcap_pipeline`` among them), by module name, and the
@@ -308,19 +347,21 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         by register).
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
-                                        context, placer, [seed], static, floorplan)
+                                        context, placer, [seed], static, floorplan, 1)
     return runs[0]
 
 
 def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, params: dict | None,
                 router: str, context: str, placer: str, seeds: list[int], static: str,
-                floorplan: str | None) -> tuple[list[dict], list[set[str]]]:
+                floorplan: str | None, jobs: int) -> tuple[list[dict], list[set[str]]]:
     """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
     depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
     a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
     ``work_dir/seed{N}``. Each result's ``seconds`` is the netlist's and that seed's
-    place-and-route, what a run of the one seed takes. Returns the results, and for each
-    the set of every register that misses ``target_mhz`` (its ``failing`` lists the worst)."""
+    place-and-route, what a run of the one seed takes (longer when ``jobs`` seeds share the
+    cores). Up to ``jobs`` seeds are placed at once (:func:`_run_many`). Returns the results,
+    and for each the set of every register that misses ``target_mhz`` (its ``failing`` lists
+    the worst)."""
     if router not in ROUTERS:
         raise ValueError(f"router must be one of {ROUTERS}, not {router!r}")
     if placer not in PLACERS:
@@ -357,21 +398,25 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
             # the placed netlist, only to check the pins (tens of MB for a join)
             placement += ["--write", "placed.json"]
         made = time.perf_counter() - t0
+        places = []
         for seed in seeds:
-            t1 = time.perf_counter()
             sd = wd if len(seeds) == 1 else wd / f"seed{seed}"
             sd.mkdir(exist_ok=True)
             # (the netlist by a path relative to the run's directory: YoWASP's sandbox did not
             # open it by its absolute path)
-            _run([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
-                  DEVICE["package"], "--json", netlist.name if sd == wd else f"../{netlist.name}",
-                  "--freq", str(target_mhz),
-                  *placement, "--timing-allow-fail", "--seed", str(seed),
-                  "--placer", placer, "--router", router, "--report", "report.json",
-                  # every endpoint's arrival, for `failing` (the critical path is one of them)
-                  "--detailed-timing-report",
-                  # (the log as it runs: a long place-and-route can be watched in work_dir)
-                  "--log", "nextpnr.log"], sd, f"nextpnr-ecp5 on {name}")
+            places.append(([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
+                            DEVICE["package"], "--json",
+                            netlist.name if sd == wd else f"../{netlist.name}",
+                            "--freq", str(target_mhz),
+                            *placement, "--timing-allow-fail", "--seed", str(seed),
+                            "--placer", placer, "--router", router, "--report", "report.json",
+                            # every endpoint's arrival, for `failing` (the critical path is
+                            # one of them)
+                            "--detailed-timing-report",
+                            # (the log as it runs: a long place-and-route can be watched)
+                            "--log", "nextpnr.log"], sd, f"nextpnr-ecp5 on {name}, seed {seed}"))
+        took = _run_many(places, jobs)
+        for seed, (_cmd, sd, _what), placed in zip(seeds, places, took, strict=True):
             report = json.loads((sd / "report.json").read_text())
             if pinned:
                 check_placed(sd / "placed.json", pinned)
@@ -402,7 +447,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                    if floorplan is not None else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
-                "seconds": round(made + time.perf_counter() - t1, 1),
+                "seconds": round(made + placed, 1),
             })
         # each register's logic depth, to tell the misses of several placements by depth
         # (seconds, on the netlist already made)
@@ -554,7 +599,7 @@ def failing_endpoints(report: dict, period_ns: float,
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
-              floorplan: str | None = None) -> dict:
+              floorplan: str | None = None, jobs: int = 1) -> dict:
     """:func:`synthesize` every component named (default: every exported one of
     :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
@@ -569,6 +614,11 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     the size of the pool a target must clear: the one-lane pipeline misses 200 MHz at 19-76
     registers on each of eighteen placements, 198 registers in all, so no change to a few of
     them makes it (``docs/fpga-history.md``, "The divider unrolled, and the pool").
+
+    ``jobs`` seeds are placed at once (default one): each nextpnr-ecp5 is one thread, so on
+    the 2-core machine ``jobs=2`` halves a many-seed run (a join's seed is 40-65 minutes).
+    The figures do not depend on it (nextpnr is deterministic per seed); only ``seconds``
+    grows when the runs share the cores.
     """
     seeds = [seed] if isinstance(seed, int) else list(seed)
     if not seeds or len(set(seeds)) != len(seeds):
@@ -579,7 +629,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     components = {}
     for n in names:
         runs, missed, depth = _synthesize(n, target_mhz, None, None, params, router, context,
-                                          placer, seeds, static, floorplan)
+                                          placer, seeds, static, floorplan, jobs)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
             lowest = {**lowest, "seeds": {str(r["seed"]): r["fmax_mhz"] for r in runs},

@@ -288,9 +288,14 @@ def test_record_figures_merges_per_configuration(tmp_path):
 
 
 
-def test_a_stopped_run_stops_its_tool(tmp_path):
-    """SIGTERM to a process running a tool through ``hdl.synth._run`` (nextpnr for an hour,
-    say) kills the tool before the process exits, rather than leaving it orphaned."""
+@pytest.mark.parametrize("call", [
+    "_run([sys.executable, '-c', TOOL], CWD, 'tool')",
+    "_run_many([([sys.executable, '-c', TOOL], CWD, 'tool')] * 1, jobs=2)",
+])
+def test_a_stopped_run_stops_its_tool(tmp_path, call):
+    """SIGTERM to a process running a tool through ``hdl.synth._run`` or ``_run_many``
+    (nextpnr for an hour, say) kills the tool before the process exits, rather than leaving
+    it orphaned."""
     import os
     import signal
     import subprocess
@@ -299,8 +304,8 @@ def test_a_stopped_run_stops_its_tool(tmp_path):
 
     child_pid = tmp_path / "child.pid"
     tool = f"import os, time; open({str(child_pid)!r}, 'w').write(str(os.getpid())); time.sleep(60)"
-    runner = ("import sys; from pathlib import Path; from hdl.synth import _run; "
-              f"_run([sys.executable, '-c', {tool!r}], Path({str(tmp_path)!r}), 'tool')")
+    runner = ("import sys; from pathlib import Path; from hdl.synth import _run, _run_many; "
+              f"TOOL, CWD = {tool!r}, Path({str(tmp_path)!r}); {call}")
     parent = subprocess.Popen([sys.executable, "-c", runner], cwd=os.getcwd())
     deadline = time.monotonic() + 30
     while not (child_pid.exists() and child_pid.read_text()) and time.monotonic() < deadline:
@@ -310,3 +315,57 @@ def test_a_stopped_run_stops_its_tool(tmp_path):
     assert parent.wait(timeout=30) == 128 + signal.SIGTERM
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)
+
+
+def _stamping_tool(path, seconds: float) -> list[str]:
+    """A stand-in tool (a Python child) that writes its pid, start and end times to ``path``."""
+    import sys
+
+    code = (f"import os, time; p = {str(path)!r}; t = time.time(); "
+            f"open(p, 'w').write(f'{{os.getpid()}} {{t}}'); time.sleep({seconds}); "
+            "open(p, 'a').write(f' {time.time()}')")
+    return [sys.executable, "-c", code]
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_run_many_runs_at_most_jobs_at_once(tmp_path, jobs):
+    """``_run_many`` (``albcap hdl synth --jobs``): with one job the runs follow each other,
+    with two the first two overlap; every run's seconds are returned in the order given."""
+    from hdl.synth import _run_many
+
+    runs = []
+    for i in range(3):
+        (tmp_path / f"{i}").mkdir()
+        runs.append((_stamping_tool(tmp_path / f"{i}" / "t", 0.5), tmp_path / f"{i}", f"run {i}"))
+    seconds = _run_many(runs, jobs)
+    assert len(seconds) == 3 and all(s >= 0.5 for s in seconds)
+    spans = [tuple(map(float, (tmp_path / f"{i}" / "t").read_text().split()[1:])) for i in range(3)]
+    overlap = spans[1][0] < spans[0][1]
+    assert overlap == (jobs == 2)
+    assert spans[2][0] >= min(spans[0][1], spans[1][1])  # never three at once
+
+
+def test_run_many_failure_kills_the_others_and_says_which(tmp_path):
+    """A tool that fails stops the run with its name, exit status and output's tail, and the
+    tools still running are killed, not left behind."""
+    import os
+    import sys
+    import time
+
+    from hdl.synth import _run_many
+
+    for d in ("slow", "bad"):
+        (tmp_path / d).mkdir()
+    slow = (_stamping_tool(tmp_path / "slow" / "t", 60), tmp_path / "slow", "slow tool")
+    fail = ("import time, sys; time.sleep(1); print('no route to the clock'); sys.exit(3)")
+    bad = ([sys.executable, "-c", fail], tmp_path / "bad", "nextpnr-ecp5 on x, seed 2")
+    t = time.monotonic()
+    with pytest.raises(RuntimeError, match=r"seed 2 failed \(exit 3\):\nno route to the clock"):
+        _run_many([slow, bad], jobs=2)
+    assert time.monotonic() - t < 30
+    pid = int((tmp_path / "slow" / "t").read_text().split()[0])
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+    for bad_jobs in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="jobs must be a positive integer"):
+            _run_many([slow], bad_jobs)
