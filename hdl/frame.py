@@ -233,7 +233,8 @@ class FramePacketizer(wiring.Component):
         # `peaks_q` (a peaks frame) is latched with the header, and also chooses the sizes:
         # decoded from `frame_type` there, it led their paths (6.0 ns).
         peaks_q = Signal()
-        full = Signal()  # n == max_samples
+        # n < max_samples, the room for another sample (the chain's own sign, below)
+        room_n = Signal(init=1)
 
         # ---- collect: header first, then the samples into the buffer ----
         beat = self.i.payload
@@ -255,7 +256,7 @@ class FramePacketizer(wiring.Component):
         # and the item's frame-type choice came before that (8.9 ns). The buffer is read only
         # from the packet's link header on, many clocks after the last write.
         m.d.sync += [buf.w_addr.eq(n), buf.w_data.eq(item),
-                     buf.w_en.eq(take & ~peaks_q & ~full)]
+                     buf.w_en.eq(take & ~peaks_q & room_n)]
         with m.If(adv):
             m.d.sync += raddr.eq(raddr + 1)
 
@@ -462,7 +463,7 @@ class FramePacketizer(wiring.Component):
         with fsm.state("HEADER"):
             with m.If(self.header.valid):
                 got_len = self.header.payload.length
-                m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0), full.eq(0),
+                m.d.sync += [hdr.eq(self.header.payload), n.eq(0), over.eq(0), room_n.eq(1),
                              len_x3.eq((got_len << 1) + got_len),
                              peaks_q.eq(self.header.payload.frame_type == FrameType.PEAKS),
                              *(k.eq(self.header.payload.frame_type == t)
@@ -472,11 +473,12 @@ class FramePacketizer(wiring.Component):
         with fsm.state("COLLECT"):
             with m.If(take):
                 # peak frames need no samples; an overlong frame is dropped at its end
-                with m.If(~full):
-                    # n < max_samples here, so n == max_samples - 1 is n >= max_samples - 1,
-                    # a carry chain's sign: as the equality, a tree of LUTs before the
-                    # state's choice, `full` was four levels deep (forty-ninth session)
-                    m.d.sync += [n.eq(n + 1), full.eq(_le(self.max_samples - 1, n))]
+                with m.If(room_n):
+                    # n < max_samples here, so n + 1 < max_samples is n < max_samples - 1, a
+                    # carry chain's sign: as the equality, a tree of LUTs before the state's
+                    # choice, "full" was four levels deep (forty-ninth session), and as the
+                    # sign inverted (n >= max_samples - 1) a LUT after the chain, two
+                    m.d.sync += [n.eq(n + 1), room_n.eq((n - (self.max_samples - 1))[-1])]
                 with m.Else():
                     m.d.sync += over.eq(1)
                 with m.If(beat.last):

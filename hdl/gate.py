@@ -222,15 +222,17 @@ class Gate(wiring.Component):
         # beside it, so that the tick is a flag, not a compare: the step after a tick or on a
         # line sync is the first of a new tick period, and reads `fine_div` (then counting
         # fine_div - 2 more steps, the tick step excluded). `fine1` (= fine + 1) is kept as a
-        # register beside `fine`, and `top1` (fine1 == maximum) beside it, so that the fine
+        # register beside `fine`, and `below1` (fine1 < maximum) beside it, so that the fine
         # step is a copy and an increment, and no compare feeds them. `fine1` saturates at the
-        # maximum (it adds ~top1), so once `fine` is there a tick copies the maximum again:
+        # maximum (it adds below1), so once `fine` is there a tick copies the maximum again:
         # the counter's enable need not test `fine_top`, which then only sets `fine_sat`.
         fine = Signal(FINE_BITS, init=self.fine_start)
         fine1 = Signal(FINE_BITS, init=min(self.fine_start + 1, _FINE_MAX))
-        top1 = Signal(init=self.fine_start + 1 >= _FINE_MAX)  # fine1 == _FINE_MAX
-        # ~top1 as a register of its own, the increment's input: through an inverter, `top1`
-        # -> the 24-bit chain -> `fine1` was the gate alone's worst path on seed 2 (5.16 ns)
+        # fine1 < _FINE_MAX, the increment's input and the chain's own sign: `top1` (fine1 ==
+        # _FINE_MAX) through an inverter -> the 24-bit chain -> `fine1` was the gate alone's
+        # worst path on seed 2 (5.16 ns), and kept as a register beside it, the sign inverted
+        # put a LUT after the chain (`fine1` -> `top1`, the gate alone's worst path on seed
+        # 1, 4.96 ns, forty-ninth session). `fine_top` takes ~below1, one LUT of a register.
         below1 = Signal(init=self.fine_start + 1 < _FINE_MAX)
         fine_top = Signal(init=self.fine_start == _FINE_MAX)  # fine == _FINE_MAX
         fine_sat = Signal()
@@ -278,8 +280,7 @@ class Gate(wiring.Component):
         # six (thirty-third session, docs/fpga-history.md).
         with m.If(step & sync):
             # fine restarts at 0, or 1 on a tick
-            m.d.sync += [fine.eq(div_le1), fine1.eq(div_le1 + 1), fine_top.eq(0), top1.eq(0),
-                         below1.eq(1),
+            m.d.sync += [fine.eq(div_le1), fine1.eq(div_le1 + 1), fine_top.eq(0), below1.eq(1),
                          fine_sat.eq(0)]
         with m.Elif(step & tick_ns):
             # fine1 is at most _FINE_MAX and stays there: so fine1 == _FINE_MAX - 1 or more
@@ -288,9 +289,8 @@ class Gate(wiring.Component):
             # `renew` -> the tick -> `fine_top`'s LUT -> the enable of the 48 flip-flops of
             # `fine` and `fine1` was three LUTs, the one-lane pipeline's worst path on seed 1
             # (6.27 ns, 5.0 of routing, thirty-seventh session).
-            top_next = _le(_FINE_MAX - 1, fine1)
-            m.d.sync += [fine.eq(fine1), fine_top.eq(top1), fine1.eq(fine1 + below1),
-                         top1.eq(top_next), below1.eq(~top_next)]
+            m.d.sync += [fine.eq(fine1), fine_top.eq(~below1), fine1.eq(fine1 + below1),
+                         below1.eq((fine1 - (_FINE_MAX - 1))[-1])]
             with m.If(fine_top):
                 m.d.sync += fine_sat.eq(1)
         fine_now = Mux(sync, 0, fine)
