@@ -369,3 +369,11 @@ def test_run_many_failure_kills_the_others_and_says_which(tmp_path):
     for bad_jobs in (0, -1, 1.5, True):
         with pytest.raises(ValueError, match="jobs must be a positive integer"):
             _run_many([slow], bad_jobs)
+
+
+@pytest.mark.parametrize("bad", ["0", "-2", "two"])
+def test_jobs_option_wants_a_positive_integer(bad, capsys):
+    """``albcap hdl synth --jobs`` refuses what is not a positive integer, naming it."""
+    with pytest.raises(SystemExit):
+        main(["hdl", "synth", "--component", "albcap_stitch", "--jobs", bad])
+    assert f"--jobs: wants a positive integer, not {bad!r}" in capsys.readouterr().err
