@@ -201,7 +201,7 @@ class PortShell(Elaboratable):
 @contextmanager
 def _sigterm_raises():
     """While a tool runs, SIGTERM raises ``SystemExit`` (in the main thread) instead of ending
-    Python at once: ``subprocess.run`` then kills the tool before Python exits. By default a
+    Python at once: :func:`_run_many` then kills the tools before Python exits. By default a
     run stopped with ``kill`` left its nextpnr running for an hour, orphaned, on a core
     another job needed (fourteenth session)."""
     if threading.current_thread() is not threading.main_thread():
@@ -218,13 +218,10 @@ def _sigterm_raises():
         signal.signal(signal.SIGTERM, old)
 
 
-def _run(cmd: list[str], cwd: Path, what: str) -> str:
-    with _sigterm_raises():
-        proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, check=False)
-    if proc.returncode != 0:
-        tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-15:])
-        raise RuntimeError(f"{what} failed (exit {proc.returncode}):\n{tail}")
-    return proc.stdout
+def _run(cmd: list[str], cwd: Path, what: str) -> None:
+    """One tool, as :func:`_run_many` runs each (killed if the run is stopped, its output's
+    tail in the error if it fails)."""
+    _run_many([(cmd, cwd, what)], 1)
 
 
 def _run_many(runs: list[tuple[list[str], Path, str]], jobs: int) -> list[float]:
