@@ -49,7 +49,7 @@ class FrameEnd(NamedTuple):
     end_long: Signal  #: that beat needed the threshold (the frame reaches ``W + 2P + 1``)
 
 
-def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le, ms_lane,
+def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_gt, ms_lane,
            stats) -> FrameEnd:
     """Build the decision into ``m``, from D2 to C.
 
@@ -70,8 +70,8 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     cand_at : list of Signal
         Per lane ``j``, ``W + 2P + 1 - j``: with the beat's base at or past it, the lane's
         centre ``base + j - 1`` is a candidate (at or past ``W + 2P``).
-    ms_le : list of Signal
-        ``min_sep <= i`` for ``i`` in ``0..3 lanes - 1`` (lane distances over three beats).
+    ms_gt : list of Signal
+        ``i < min_sep`` for ``i`` in ``0..3 lanes - 1`` (lane distances over three beats).
     ms_lane : list of Signal
         Per lane ``j``, ``min_sep + j - 1`` (capped): ``s + min_sep`` is ``base + ms_lane[j]``.
     stats : hdl._peak_stats.WindowStats
@@ -96,7 +96,7 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_le,
     d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos = _local_maxima(
         m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, stats.bound, stats.sbound)
     s_found, sep_at, d3_new, d3_any, d3_elig = _surface(
-        m, top.surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos, ms_le)
+        m, top.surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos, ms_gt)
     # The beat travels with its valid bit to C, 4 depth + 8 clocks after D2; it is read at
     # D3 (bd1: everything), R (bt_r, 2 depth + 2 clocks on: the samples), B2 (bt_b, 4 depth
     # + 6 clocks on: samples, templates, base, first) and C (bt_c: last, long). The long
@@ -165,7 +165,8 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, d
     d2a_cpos = [Signal(_POS, name=f"d2a_cpos{j}") for j in range(L)]  # centre base + j - 1
     for j in range(L):
         a, b, c = ev[j], ev[j + 1], ev[j + 2]
-        lane = [_sub_sign(m, a, b, f"d2a_ab{j}"), ~_sub_sign(m, b, c, f"d2a_bc{j}"),
+        # (b >= c registered as b < c, the chain's own sign: inverted in the AND below)
+        lane = [_sub_sign(m, a, b, f"d2a_ab{j}"), _sub_sign(m, b, c, f"d2a_bc{j}"),
                 kv[j] == kv[j + 2],
                 (Const(j) < d1.count) & ~_sub_sign(m, d1_base, cand_at[j], f"d2a_cand{j}"),
                 _sub_sign(m, dec_bound, b, f"d2a_thr{j}")]
@@ -179,7 +180,8 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, d
     d2 = _reg(m, d2a, beat, "d2")
     d2_valid = _reg(m, d2a_valid, 1, "d2_valid")
     d2_peak, d2_speak = Signal(L), Signal(L)
-    peak = [reduce(and_, tests[j]) for j in range(L)]
+    peak = [reduce(and_, [~t if i == 1 else t for i, t in enumerate(tests[j])])
+            for j in range(L)]
     speak = [peak[j] & s_tests[j] for j in range(L)]
     m.d.sync += [d2_peak[j].eq(peak[j]) for j in range(L)]
     m.d.sync += [d2_speak[j].eq(speak[j]) for j in range(L)]
@@ -194,7 +196,7 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, d
 
 
 def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos,
-             ms_le):
+             ms_gt):
     """D3: the surface (the frame's first peak above the surface's bound, ``d2_speak``) and
     its message on ``surface``, lanes eligible as a bottom (peaks, ``d2_peak``).
 
@@ -216,8 +218,9 @@ def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d
     sep_at = Signal(_SEP)  # s + min_sep, from the second beat after the surface's on
     # c >= s + min_sep per lane, for the beat entering D2 (valid from the third beat after
     # the surface's: sep_at is set the clock after the surface's D3)
-    sep_ok = [_reg(m, ~_sub_sign(m, d2a_cpos[j], sep_at, f"d3_sep{j}"), 1, f"d3_sep{j}")
-              for j in range(L)]
+    # (registered as c < s + min_sep, the chain's own sign, and inverted where it is read)
+    sep_short = [_reg(m, _sub_sign(m, d2a_cpos[j], sep_at, f"d3_sep{j}"), 1, f"d3_sep{j}")
+                 for j in range(L)]
     found = s_found & ~d2.first
     fo = [d2_sfo[j] for j in range(L)]  # the first surface peak, one-hot (registered at D2)
     new_s = Signal()
@@ -225,10 +228,10 @@ def _surface(m, surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d
     near, near2 = s_lane.any(), s_lane2.any()
     d3_elig = Signal(L)
     for j in range(L):
-        sep_new = reduce(or_, [d2_speak[i] & ms_le[j - i] for i in range(j + 1)])
-        sep_near = reduce(or_, [s_lane[i] & ms_le[L + j - i] for i in range(L)])
-        sep_near2 = reduce(or_, [s_lane2[i] & ms_le[2 * L + j - i] for i in range(L)])
-        sep_old = Mux(near, sep_near, Mux(near2, sep_near2, sep_ok[j]))
+        sep_new = reduce(or_, [d2_speak[i] & ~ms_gt[j - i] for i in range(j + 1)])
+        sep_near = reduce(or_, [s_lane[i] & ~ms_gt[L + j - i] for i in range(L)])
+        sep_near2 = reduce(or_, [s_lane2[i] & ~ms_gt[2 * L + j - i] for i in range(L)])
+        sep_old = Mux(near, sep_near, Mux(near2, sep_near2, ~sep_short[j]))
         m.d.sync += d3_elig[j].eq(d2_peak[j] & Mux(found, sep_old, sep_new))
     d3_new = Signal(L)  # the surface's lane, one-hot, if found in this beat
     # (the bits concatenated: as a sum of shifted bits, which it equals, Yosys made adders)

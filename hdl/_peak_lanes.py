@@ -87,7 +87,7 @@ from amaranth.lib import data
 from ._peak_common import _POS, _QUEUE
 from ._peak_decide import decide
 from ._peak_stats import Windows, window_statistics
-from ._primitives import _le, _reg, _room, _step, _Store, _sub_sign
+from ._primitives import _reg, _room, _step, _Store, _sub_sign
 from .matched_filter import TAG_WIDTH
 from .peak_detect import (
     _P_MAX_LOG2,
@@ -117,15 +117,13 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
     surface
         From accepting the beat holding ``y[s + 1]`` to the surface message being valid, when
         that beat does not wait for the threshold (:data:`~hdl.peak_detect.SURFACE_LATENCY`:
-        the accepting register ``D1`` holds the beat, the compares run from it into D2a, their
-        conjunction into D2, D3 raises the message).
+        the accepting register ``H`` holds the beat, then ``D1``, the compares run from it into
+        D2a, their conjunction into D2, D3 raises the message).
     result
         From accepting the frame's last beat to its result beat being valid, when the beat
-        does not wait: D1 to C is ``4 levels + 11`` clocks, then the divider's three loading
-        clocks, its steps, the clock taking the last quotient bit and the payload register.
-        (A partial last beat of ``c`` samples at ``base`` with ``base + c < W + 2P + 2 <=
-        base + lanes``, taken from the port straight into D1, waits one clock there: the
-        port's beat goes on a full beat's flag.)
+        does not wait: H, then D1 to C is ``4 levels + 11`` clocks, then the divider's three
+        loading clocks, its load and steps at two clocks each, the clock taking the last
+        quotient bit and the payload register.
     bubble
         The most clocks a beat waits in ``D1`` for its frame's threshold, counted as extra
         latency: the flag and mask stages, two trees of ``levels`` clocks, the sum, ``mu``,
@@ -135,8 +133,8 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
         the choice of the sum (as ``thr`` loads), the bound's cap and the registered tag match
         (into ``go``), from the beat that closes the noise window.
 
-    ``levels = ceil(log2(lanes))``: one lane gives ``(4, 26, 16)``, 4 lanes ``(4, 34, 20)``,
-    8 lanes ``(4, 38, 22)``.
+    ``levels = ceil(log2(lanes))``: one lane gives ``(5, 37, 16)``, 4 lanes ``(5, 45, 20)``,
+    8 lanes ``(5, 49, 22)``.
 
     With a lookahead of ``D`` beats (``H = lookahead_hides(lanes)``):
 
@@ -148,7 +146,8 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
         FIFO is full ahead of the beat and no beat waits (:class:`hdl.detect.FilterDetect`
         bounds ``bin_offset`` with it).
     result
-        ``D`` more than without: the beat's wait in a full FIFO.
+        ``D - 1`` more than without: the beat's wait in a full FIFO, which stands in
+        place of H.
     bubble
         ``max(0, H - D)``: the clocks a frame's wait for its threshold still stalls the
         input, once per frame, in back-to-back traffic.
@@ -157,8 +156,9 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
     if not lookahead:
         return SURFACE_LATENCY, RESULT_LATENCY + 4 * d, THRESHOLD_BUBBLE + 2 * d
     hides = lookahead_hides(lanes)
-    return (SURFACE_LATENCY + max(lookahead, hides - 1), RESULT_LATENCY + 4 * d + lookahead,
-            max(0, hides - lookahead))
+    # (the lookahead's FIFO stands where the plain input has its register H: a clock less)
+    return (SURFACE_LATENCY - 1 + max(lookahead, hides - 1),
+            RESULT_LATENCY - 1 + 4 * d + lookahead, max(0, hides - lookahead))
 
 
 def lookahead_hides(lanes: int) -> int:
@@ -256,7 +256,10 @@ def elaborate(top, platform):
     first_needs = [_reg(m, W2P + 2 <= c, 1, f"first_needs{c}", True) for c in range(L + 1)]
     # (each a carry chain's sign: as compares with constants, Yosys shared their LUTs into
     # a tree four levels deep from the register)
-    ms_le = [_reg(m, _le(cfg.min_sep, j), 1, f"ms_le{j}", True) for j in range(3 * L)]
+    # (`i < min_sep` as registered, the chain's own sign; its readers invert it in their LUT:
+    # `min_sep <= i` registered was the chain and an inverter before the flip-flop, rule 14)
+    ms_gt = [_reg(m, _sub_sign(m, Const(j, range(3 * L)), cfg.min_sep, f"ms_gt{j}"), 1,
+                  f"ms_gt{j}", True) for j in range(3 * L)]
     # min_sep + j - 1 per lane, so that "c + min_sep" of a lane's centre is one add; capped
     # where no centre of a frame can reach it (from min_sep - 1 registered: an add and a
     # compare side by side, then the choice)
@@ -296,17 +299,25 @@ def elaborate(top, platform):
                 m.d.sync += [tag.eq(tag_p1), tag_p1.eq(tag_p1 + 1)]
 
     if not LA:
-        skid, h1 = Signal(held), Signal(held)
-        s_valid, d1_valid = Signal(), Signal()
+        # The port's beat enters H (or the skid behind it, which keeps i.ready a register),
+        # and D1 takes only H's beat: so what D1 holds next is a register, and go, decided a
+        # clock ahead, reads no port. With D1 taking the port's beat straight (H absent), go
+        # read the port's valid, first and last and the flags chosen by them, seventeen
+        # inputs four LUTs deep: it missed 200 MHz on 8 of 10 placements of the detector
+        # alone (fifty-first session) and on every one of the one-lane pipeline's.
+        skid, hb, h1 = Signal(held), Signal(held, name="h_beat"), Signal(held)
+        s_valid, h_valid, d1_valid = Signal(), Signal(name="h_valid"), Signal()
         d1, d1_base, d1_needs, d1_tag = h1.beat, h1.base, h1.needs, h1.tag
         m.d.comb += [top.i.ready.eq(~s_valid), accept.eq(top.i.valid & ~s_valid),
                      free.eq(~d1_valid | go)]
         track_input()
-        loads = Signal()  # D1 takes a new beat (from the skid if it holds one)
-        m.d.comb += loads.eq(free & (s_valid | top.i.valid))
+        loads = Signal()  # D1 takes H's beat
+        m.d.comb += loads.eq(free & h_valid)
         with m.If(free):
-            m.d.sync += [h1.eq(Mux(s_valid, skid.as_value(), inb.as_value())),
-                         d1_valid.eq(s_valid | top.i.valid), s_valid.eq(0)]
+            m.d.sync += [h1.eq(hb), d1_valid.eq(h_valid)]
+        with m.If(~h_valid | free):  # H is empty or its beat moves on: H takes one
+            m.d.sync += [hb.eq(Mux(s_valid, skid.as_value(), inb.as_value())),
+                         h_valid.eq(s_valid | top.i.valid), s_valid.eq(0)]
         with m.Elif(accept):
             m.d.sync += s_valid.eq(1)
         # The skid loads the port's beat at every clock while it is empty: its value matters
@@ -326,51 +337,32 @@ def elaborate(top, platform):
         # other beat follows one of its own frame.
         thr_tag = Signal(TAG_WIDTH + 1, init=(1 << (TAG_WIDTH + 1)) - 1)
         # busy: a result is being divided or waits to be taken; a frame's last beat waits.
-        # go is a register, decided a clock ahead from what D1, the tag match, fresh and busy
-        # will be (the same function of them as it would be in its own clock): its fan-out to
+        # go is a register, decided a clock ahead from what D1, the tag match and busy will
+        # be (the same function of them as it would be in its own clock): its fan-out to
         # every D1 enable then starts at a flip-flop. Decided in its own clock it was the worst
-        # path.
-        # The decision is made for each of the three beats D1 may hold next (the skid's, the
-        # port's, its own) from that beat's flags alone, and the source then picks one: a mux
-        # of the three beats' flags before the decision put the port's beat (the filter's
-        # output) five LUTs from go, the pipeline's worst path (6.64 ns, 4.7 of it routing).
-        # A beat loaded now (skid or port) goes on the tag match only if it is not a first.
+        # path. D1 holds next either its own beat or H's, both registers. A beat loaded from
+        # H goes on the tag match only if it is not a first.
         # "Busy after this clock" (D1's last beat goes now, or a result waits on) chooses
         # between the decisions worked out for busy and for not busy: as a term of each beat's
         # decision, D1's `last` -> `go & last` -> busy after -> the decision -> go was five
         # LUTs, the 3 x 3 interleaved build's worst path (8.34 ns). And go's own loop (go ->
         # D1 free, and busy after -> go) is one LUT: the decision is worked out for D1's beat
-        # going now (D1 takes the next beat; busy after if it was a last) and for it staying
-        # (D1 takes one only if it is empty), and go picks. With go inside the cone, go ->
-        # busy -> the port's beat -> go was six LUTs, the detector's worst path alone (6.34
-        # ns, 157.7 MHz).
+        # going now (D1 takes H's; busy after if it was a last) and for it staying (D1 takes
+        # H's only if it is empty), and go picks.
         busy = Signal()
         tag_eq = Signal(name="tag_eq")  # thr_tag == d1_tag (below: == last_tag)
         stays = Signal(name="busy_stays")  # busy after this clock, if D1's beat stays
         m.d.comb += stays.eq(busy & ~(top.o.valid & top.o.ready))
 
-        # The port's beat goes on the flag of a full beat (count L), not on its own: a full
-        # beat's is one of two registers, where `inb.needs` is chosen by the beat's count (an
-        # 11-way mux at ten lanes), which put the port's count 6 cells and 10.09 ns from go,
-        # the worst path of the 10 x 12 join with two fork slices (99.1 MHz). Only a frame's
-        # last beat may be partial, and the flag only grows with the count, so the full
-        # beat's flag is the beat's own or a 1 where it is 0: then no beat of the frame needs
-        # the threshold, none is held for it (tag_eq is low) and the beat stays one clock in
-        # D1, to go on its own flag (`h1.needs`, exact) in the next. Results are unchanged;
-        # such a frame's result comes one clock later (tests/test_hdl_peak_detect.py).
-        port_needs = Mux(d.first, first_needs[L], next_needs[L])
-
-        def may_go(b, needs, loaded, busy_next: bool):
-            ok = ~needs | (tag_eq & (~b.beat.first if loaded else 1))
+        def may_go(b, loaded, busy_next: bool):
+            ok = ~b.needs | (tag_eq & (~b.beat.first if loaded else 1))
             return ok & ~b.beat.last if busy_next else ok
 
-        def taken(busy_next: bool):  # the beat D1 takes now (the skid's, else the port's)
-            return Mux(s_valid, may_go(skid, skid.needs, True, busy_next),
-                       top.i.valid & may_go(inb, port_needs, True, busy_next))
+        def taken(busy_next: bool):  # the beat D1 takes now: H's
+            return h_valid & may_go(hb, True, busy_next)
 
-        def kept(busy_next: bool):  # D1's own beat, or the one it takes if it is empty
-            return Mux(~d1_valid, taken(busy_next),
-                       d1_valid & may_go(h1, h1.needs, False, busy_next))
+        def kept(busy_next: bool):  # D1's own beat, or H's if D1 is empty
+            return Mux(~d1_valid, taken(busy_next), may_go(h1, False, busy_next))
 
         if_goes = Mux(d1.last | stays, taken(True), taken(False))
         if_stays = Mux(stays, kept(True), kept(False))
@@ -462,13 +454,13 @@ def elaborate(top, platform):
         # MHz) and the pipeline's in one seed (run 42).
         last_tag = Signal(TAG_WIDTH, name="last_tag")
         with m.If(loads):
-            m.d.sync += last_tag.eq(Mux(s_valid, skid.tag, inb.tag))
-        enters_first = loads & Mux(s_valid, skid.beat.first, d.first)
+            m.d.sync += last_tag.eq(hb.tag)
+        enters_first = loads & hb.beat.first
         m.d.sync += tag_eq.eq(~enters_first & Mux(new, new_tag == last_tag, ~clr & tag_eq))
     # ---- the decision, D2 to C (hdl._peak_decide), as the beat leaves D1 ----
     s_fin, b_fin, end_valid, end_long = decide(
         m, top, levels=depth, go=go, d1=d1, d1_base=d1_base, d1_needs=d1_needs, d1_tag=d1_tag,
-        cand_at=cand_at, ms_le=ms_le, ms_lane=ms_lane, stats=stats)
+        cand_at=cand_at, ms_gt=ms_gt, ms_lane=ms_lane, stats=stats)
 
     # ---- frame end: statistics at the last beat's go, records to the divider ----
     fin_mu, fin_noise, fin_thr = Signal(_Y), Signal(NOISE_WIDTH), Signal(THR_WIDTH)

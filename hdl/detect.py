@@ -12,18 +12,20 @@ detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one per pip
 a stall holds them, it never adds any), so by then the filter has accepted samples up to
 ``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of them before the surface
 was known. They must all still use template 0, so the join is exact for
-``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (22 at one
-lane), below the register's floor of 24; the pipeline's join, with a register slice before its
-fork, needs 24, the floor itself (:attr:`FilterDetect.min_bin_offset`), so a clock more in the
-filter, on the detector's surface path or at the fork needs the floor raised. Tested at the
+``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (23 at one
+lane), below the register's floor of 25; the pipeline's join, with a register slice before its
+fork, needs 25, the floor itself (:attr:`FilterDetect.min_bin_offset`), so a clock more in the
+filter, on the detector's surface path or at the fork needs the floor raised (as the
+detector's input register H raised it from 24, fifty-first session). Tested at the
 floor with surfaces on plain, idle and back-pressured traffic, and with more lanes at
 ``min_bin_offset`` itself (``tests/test_hdl_detect_lanes.py``).
 
 With the detector's lookahead (``lookahead = D`` beats, :class:`~hdl.peak_detect.PeakDetect`)
 the beat holding ``y[s + 1]`` may wait behind ``D`` others in the detector's FIFO, so up to
 ``surface_latency = 4 + max(D, lookahead_hides - 1)`` beats are taken before the message is
-valid: ``min_bin_offset`` grows by ``lanes x (surface_latency - 4)`` (``lanes x D`` when the
-lookahead hides the threshold wait), above the register's floor even at one lane (42 with
+valid: ``min_bin_offset`` grows by ``lanes x (surface_latency - 5)`` (``lanes x (D - 1)`` when
+the lookahead hides the threshold wait: the FIFO stands where the plain detector has its input
+register H), above the register's floor even at one lane (42 with
 ``D = 20``); a bank for such a build must respect it. In exchange ``frame_gap_clocks`` is 0.
 Tested at ``min_bin_offset`` with one and three lanes.
 """
@@ -92,7 +94,7 @@ class FilterDetect(wiring.Component):
         the fork (the pipeline's worst path on two nextpnr seeds, ``docs/fpga-history.md`` run 46;
         the 10 x 12 join's, twenty-sixth session). Each delays the fed-back surface by up to
         two beats (its two entries): :attr:`min_bin_offset` grows by ``2 lanes`` a slice, to
-        24 at one lane with one, the register's floor. A second slice gives the placer a
+        25 at one lane with one, the register's floor. A second slice gives the placer a
         register to put beside the detector when the first sits beside the filter (the
         10 x 12 join with one: the slice -> the detector's input decision, 3.9 ns of routing
         across the part). Off by default (a many-lane join's figure is without it unless its
@@ -127,7 +129,7 @@ class FilterDetect(wiring.Component):
     frame_gap_clocks : int
         Clocks per frame beyond its ``ceil(N / lanes)`` beats (the detector's threshold wait,
         ``threshold_bubble``: 0 with ``lookahead >= lookahead_hides``, for frames of at least
-        the detector's ``result_latency`` without a lookahead, ``26 + 4 ceil(log2 lanes)``
+        the detector's ``result_latency`` without a lookahead, ``37 + 4 ceil(log2 lanes)``
         beats, and a result sink that takes each result at once).
 
     Notes

@@ -40,14 +40,14 @@ THR_WIDTH = max(by_name("min_thr").hi, (by_name("k_thr_q4").hi * NOISE_MAX) >> 4
 #: Steps of the sub-sample divider (``q + 128`` in ``0..256``).
 DIVIDE_STEPS = 9
 #: One lane: clocks from accepting a frame's last sample to its result beat being valid, when
-#: the sample does not wait (the decision and bottom stages, the divider's three loading
-#: clocks, its steps, the clock that takes the last quotient bit and the clock that registers
-#: the payload and raises ``o.valid``). ``lanes`` add ``4 ceil(log2 lanes)``
-#: (:func:`hdl._peak_lanes.latencies`).
-RESULT_LATENCY = DIVIDE_STEPS + 17
+#: the sample does not wait (the input register H, the decision and bottom stages, the
+#: divider's three loading clocks, its load and steps at two clocks each, the clock that takes
+#: the last quotient bit and the clock that registers the payload and raises ``o.valid``).
+#: ``lanes`` add ``4 ceil(log2 lanes)`` (:func:`hdl._peak_lanes.latencies`).
+RESULT_LATENCY = 2 * DIVIDE_STEPS + 19
 #: Clocks from accepting ``y[s + 1]`` to the surface message of the peak at ``s`` being valid,
-#: when that sample does not wait for the threshold (any ``lanes``).
-SURFACE_LATENCY = 4
+#: when that sample does not wait for the threshold (any ``lanes``; H, D1, D2a, D2, D3).
+SURFACE_LATENCY = 5
 #: One lane: the most clocks a frame's sample ``W + 2P + 1`` (its first peak candidate's right
 #: neighbour) waits with ``i.ready`` low for the frame's threshold: once per frame, counted
 #: from the sample that closes the noise window. ``lanes`` add ``2 ceil(log2 lanes)``.
@@ -81,12 +81,16 @@ def record_layout(k_shape) -> data.StructLayout:
 
 def divider_layout(k_shape) -> data.StructLayout:
     """One peak in the sub-sample divider: what the record needs plus ``b - a``, ``b - c``,
-    ``den`` and ``-den``, the (scaled) remainder and the quotient bits."""
+    ``den`` and ``-den``, the (scaled) remainder, the two operands of its add and the
+    quotient bits."""
     return data.StructLayout({"found": 1, "n": N_WIDTH, "b": _Y, "k": k_shape, "rise": _RISE,
                               "bma": signed(OUT_WIDTH + 1), "bmc": signed(OUT_WIDTH + 1),
                               "den": signed(OUT_WIDTH + 2),
                               "nden": signed(OUT_WIDTH + 2),
                               "rem": signed(OUT_WIDTH + 13),
+                              # the remainder's add reads only these registers (divide)
+                              "op_a": signed(OUT_WIDTH + 5),
+                              "op_b": signed(OUT_WIDTH + 3),
                               "q": unsigned(DIVIDE_STEPS),
                               # made while the divider steps, so that the result beat is a
                               # register: b - mu (saturated at the end), 256 n - 128 (+ q)
@@ -100,12 +104,13 @@ def load_divider(m, fins, recs, long, start, mu):
     Three clocks, one add or subtract of two registers each: at ``start`` the records'
     ``b - a`` and ``b - c`` are registered (with ``found``, gated by ``long``: the frame
     reached ``W + 2P + 2`` samples, and the other fields), at the next edge their sum ``den =
-    2 b - a - c``, at the third ``-den`` while :func:`divide`'s adder makes ``N' = 512 (b - a)
-    + den``. ``2 b - a - c`` straight from the records (three operands, a LUT layer before the
-    carry chain) was a worst path (5.3 ns), and before that two adds in series. At the second
-    clock also ``b - mu`` and ``256 n - 128`` (``mu``: the frame's baseline register, set before
-    ``start``), for :func:`drive_result`. Returns the signal that is high on the third clock
-    (start the divider then).
+    2 b - a - c``, at the third ``-den`` while :func:`divide` registers the operands of its
+    first add, which makes ``N' = 512 (b - a) + den``. ``2 b - a - c`` straight from the
+    records (three operands, a LUT layer before the carry chain) was a worst path (5.3 ns),
+    and before that two adds in series. At the second clock also ``b - mu`` and ``256 n -
+    128`` (``mu``: the frame's baseline register, set before ``start``), for
+    :func:`drive_result`. Returns the signal that is high on the third clock (start the
+    divider then).
     """
     loading = Signal(name="div_loading")
     loading2 = Signal(name="div_loading2")
@@ -124,48 +129,56 @@ def load_divider(m, fins, recs, long, start, mu):
 
 
 def divide(m, fins, start, q_done):
-    """:data:`DIVIDE_STEPS` steps, one per clock from the clock after ``start`` (the clock
-    ``fins`` are loaded); the clock after the last (which takes the last quotient bit), pulse
-    ``q_done`` (a register).
-
-    The steps are counted by a one-hot shift register and enabled by a register of their own
-    (``div_upd``): a counter compare deciding the enable of every divider register was a worst
-    path (routing of its fan-out).
+    """The remainder loaded, then :data:`DIVIDE_STEPS` steps, each in two clocks from the
+    clock after ``start`` (the clock ``fins`` are loaded); the clock after the one that takes
+    the last quotient bit, pulse ``q_done`` (a register).
 
     Non-restoring: step ``i`` adds ``d_i = D << (8 - i)`` when the remainder is negative and
     subtracts it otherwise, and the quotient bit is the new remainder's sign. That remainder
     is restoring division's trial difference (a negative ``r - 2 d`` plus ``d`` is ``r - d``),
-    so the quotient is the same; but the choice comes from a register before the carry chain,
-    where restoring division's sign chose the new remainder after it (the chain, then a mux
-    across every remainder bit: a worst path, 5.8 ns). The remainder is kept scaled by
-    ``2^i`` (``rem = 2 rem -/+ (D << 9)``), so the divisor stands still and its low nine bits
-    are zero: the carry chain covers the upper 29 bits only (it was 37). It is loaded through
-    the same adder (at ``start``: ``N' = 512 (b - a + (den >> 9)) + den mod 512``), so no load
-    mux sits after the chain, and the quotient bit is shifted in a clock later from the
-    remainder register's sign (``div_upd_d``; the last one in the clock after the last step,
-    which raises ``done``): the chain ends in the remainder's flip-flops and nowhere else.
+    so the quotient is the same. The remainder is kept scaled by ``2^i`` (``rem = 2 rem -/+
+    (D << 9)``), so the divisor stands still and its low nine bits are zero: the carry chain
+    covers the upper 28 bits only, and the low bits shift.
+
+    Each add is the sum of two registers, ``op_a`` and ``op_b``, and nothing else: the chain
+    runs from their flip-flops into the remainder's. They are chosen in the clock before
+    (``op_a`` = ``2 rem`` in the upper bits, ``op_b`` = ``+/-D`` by the remainder's sign, one
+    LUT each from registers) and the add follows a clock later, so a step takes two clocks.
+    The load is the first add, of ``b - a`` and ``den >> 9`` (``N' = 512 (b - a) + den``, its
+    low nine bits ``den mod 512`` shifted in beside it). Chosen in the add's own clock (a LUT
+    of ``start`` or the remainder's sign in front of the 28-bit chain), the remainders missed
+    200 MHz on every placement of the detector and of the one-lane pipeline (``div_loading2``
+    or the remainder's sign -> a LUT -> the chain, 5.2-5.7 ns). The divider runs once a
+    frame, so the second clock per step only lengthens ``RESULT_LATENCY``.
+
+    The clocks are counted by registers of their own: ``div_add`` (the adds, every other
+    clock), ``div_adds`` (one-hot, which add), ``div_take`` (a quotient bit, the clock after
+    each step's add) and ``div_end`` (the clock after the last add).
     """
-    phase = Signal(DIVIDE_STEPS + 1, name="div_phase")  # one-hot: steps left, then the end
-    upd = Signal(name="div_upd")
-    upd_d = Signal(name="div_upd_d")  # the clocks after the steps: take a quotient bit
-    m.d.sync += upd_d.eq(upd)
-    m.d.sync += phase.eq(phase >> 1)
-    with m.If(start):
-        m.d.sync += [phase.eq(1 << DIVIDE_STEPS), upd.eq(1)]
-    with m.Elif(phase[1]):
-        m.d.sync += upd.eq(0)  # this clock makes the last step
-    m.d.sync += q_done.eq(phase[0])
     S = DIVIDE_STEPS  # N' = 2^S (b - a) + den; D << (S - 1) is the first d_i
+    add = Signal(name="div_add")  # op_a + op_b -> the remainder at this clock
+    sel = Signal(name="div_sel")  # between two adds (the operands are chosen)
+    adds = Signal(S + 1, name="div_adds")  # one-hot: the load (bit 0), then the steps
+    take = Signal(name="div_take")  # the last add's quotient bit -> q at this clock
+    end = Signal(name="div_end")  # the clock after the last step's add
+    m.d.sync += [add.eq(start | sel), sel.eq(add & ~adds[-1]),
+                 take.eq(add & ~adds[0]), end.eq(add & adds[-1]), q_done.eq(end)]
+    with m.If(start):
+        m.d.sync += adds.eq(1)
+    with m.Elif(add):
+        m.d.sync += adds.eq(adds << 1)
     for i, fin in enumerate(fins):
         r = fin.rem
         hi = Signal(signed(len(r) - S), name=f"div_hi{i}")  # the sum at bit S and up
-        m.d.comb += hi.eq(Mux(start, fin.bma, r[S - 1:].as_signed())
-                          + Mux(start, fin.den >> S,
-                                Mux(r[-1], fin.den << 1, fin.nden << 1)))
-        with m.If(start | upd):
-            m.d.sync += r.eq(Cat(Mux(start, fin.den[:S], Cat(Const(0, 1), r[:S - 1])), hi))
-    with m.If(upd_d):
-        m.d.sync += [fin.q.eq((fin.q << 1) | ~fin.rem[-1]) for fin in fins]
+        m.d.comb += hi.eq(fin.op_a + fin.op_b)
+        # (the operands are loaded at every clock: an add reads those of the clock before)
+        m.d.sync += [fin.op_a.eq(Mux(start, fin.bma, r[S - 1:].as_signed())),
+                     fin.op_b.eq(Mux(start, fin.den >> S,
+                                     Mux(r[-1], fin.den << 1, fin.nden << 1)))]
+        with m.If(add):
+            m.d.sync += r.eq(Cat(Mux(adds[0], fin.den[:S], Cat(Const(0, 1), r[:S - 1])), hi))
+        with m.If(take):
+            m.d.sync += fin.q.eq((fin.q << 1) | ~r[-1])
 
 
 def drive_result(m, o, o_valid, q_done, fin_mu, fin_noise, fin_thr, fins):
@@ -236,11 +249,11 @@ class PeakDetect(wiring.Component):
     surface_latency, result_latency : int
         Clocks from accepting the beat holding ``y[s + 1]`` to the surface message, and from
         accepting a frame's last beat to its result beat, when that beat does not wait (one
-        lane: :data:`SURFACE_LATENCY` = 4, :data:`RESULT_LATENCY` = 26). With a lookahead of
+        lane: :data:`SURFACE_LATENCY` = 5, :data:`RESULT_LATENCY` = 37). With a lookahead of
         ``D`` beats, the worst cases: the surface ``4 + max(D, lookahead_hides - 1)`` (also
         the most beats accepted in between, which bounds ``bin_offset`` in
-        :class:`hdl.detect.FilterDetect`), the result ``D`` clocks later than without (a
-        full FIFO ahead of the beat); :func:`hdl._peak_lanes.latencies`.
+        :class:`hdl.detect.FilterDetect`), the result ``D - 1`` clocks later than without (a
+        full FIFO ahead of the beat, in place of the register H); :func:`hdl._peak_lanes.latencies`.
     threshold_bubble : int
         Most clocks a frame's wait for its threshold keeps ``i.ready`` low, once per frame
         (one lane: :data:`THRESHOLD_BUBBLE` = 16; with a lookahead ``max(0, lookahead_hides
@@ -260,7 +273,7 @@ class PeakDetect(wiring.Component):
     a lookahead, also after the frames still in its FIFO: up to ``lookahead`` beats).
 
     No bubble: with ``lookahead >= lookahead_hides``, ``o`` taken as soon as it is valid and
-    every frame at least ``result_latency`` of ``lookahead = 0`` beats long (``26 + 4
+    every frame at least ``result_latency`` of ``lookahead = 0`` beats long (``37 + 4
     ceil(log2 lanes)``: the frame end's wait for the previous result, which the lookahead
     does not hide), frames sent back to back are accepted at one beat per clock from reset
     on, ``i.ready`` never low: the first frame's wait fills the FIFO to ``lookahead_hides -

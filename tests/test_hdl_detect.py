@@ -89,7 +89,7 @@ def test_verilator(tmp_path, case_name, traffic_name):
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
 def test_verilator_fork_slice(tmp_path, traffic_name):
     """The join with a register slice before its fork (the pipeline's), template switches
-    from its ``min_bin_offset`` on: the register's floor, 24 (two more than without it: the
+    from its ``min_bin_offset`` on: the register's floor, 25 (two more than without it: the
     slice's two entries; ``test_bound``)."""
     run_join(tmp_path, "edge16", traffic_name, fork_slice=True)
 
@@ -115,7 +115,8 @@ def test_verilator_lookahead(tmp_path, traffic_name):
     join._MustUse__silence = plain._MustUse__silence = True
     assert join.frame_gap_clocks == 0
     # (one lane: the surface message may come LOOKAHEAD beats later)
-    assert join.min_bin_offset == plain.min_bin_offset + LOOKAHEAD
+    # (the lookahead's FIFO stands where the plain detector has its input register H)
+    assert join.min_bin_offset == plain.min_bin_offset + LOOKAHEAD - 1
     run_join(tmp_path, "edge16", traffic_name, lookahead=LOOKAHEAD,
              bin_offset=join.min_bin_offset, taps_max=LOOKAHEAD_TAPS)
 

@@ -86,7 +86,8 @@ def test_bound_grows_with_lanes():
 def test_bound_grows_with_lookahead():
     """The surface message comes up to ``lookahead`` beats later; the wait is hidden."""
     plain, la = join(), join(LOOKAHEAD)
-    assert la.min_bin_offset == plain.min_bin_offset + LANES * LOOKAHEAD
+    # (the lookahead's FIFO stands where the plain detector has its input register H)
+    assert la.min_bin_offset == plain.min_bin_offset + LANES * (LOOKAHEAD - 1)
     assert (plain.frame_gap_clocks, la.frame_gap_clocks) == (20, 0)
     # the registry that hdl.synth measures takes the keyword through
     big = COMPONENTS["albcap_filter_detect"](lanes=10, taps_max=15, lookahead=32)
@@ -175,7 +176,7 @@ def test_bound_grows_with_window_reg():
     assert wr.min_bin_offset == plain.min_bin_offset + LANES
     assert (wr.y_latency, wr.frame_gap_clocks) == (plain.y_latency + 1, plain.frame_gap_clocks)
     big = COMPONENTS["albcap_filter_detect"](lanes=10, taps_max=12, fork_slice=2, window_reg=1)
-    assert big.window_reg is True and big.min_bin_offset == 221
+    assert big.window_reg is True and big.min_bin_offset == 231
     for fd in (plain, wr, big):
         fd._MustUse__silence = True
 

@@ -269,7 +269,7 @@ def test_lanes_must_be_positive():
     dut = PeakDetect(lanes=8)
     dut._MustUse__silence = True
     assert dut.lanes == 8
-    assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == (4, 38, 22)
+    assert (dut.surface_latency, dut.result_latency, dut.threshold_bubble) == (5, 49, 22)
 
 
 #: 3 lanes (an odd count), one beat short of hiding the threshold wait: back-to-back frames
