@@ -34,6 +34,7 @@ from amaranth.lib.wiring import In, Out
 from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
+from ._lookup import RegisteredLookup
 from ._primitives import _fills, _le, _output_buffer, _reg, _step
 from .layouts import STITCHED, config_signature
 
@@ -225,18 +226,39 @@ def _out_shift(m: Module, cfg):
 
 
 def _saturation_bounds(m: Module, sh, acc_width: int):
-    """``(over_at, under_at)``, registered from ``sh``: ``y`` saturates high when
-    ``acc >= over_at``, low when ``acc < under_at``."""
+    """``(over_at, under_at)``, registered from ``sh`` in two clocks: ``y`` saturates high
+    when ``acc >= over_at``, low when ``acc < under_at``.
+
+    Each bound is a table of ``sh``'s 32 values. Looked up in one clock, ABC shared the
+    decode across the 41 bits into four LUT levels from ``out_shift_q`` (the bounds missed
+    200 MHz on every one of the recorded one-lane pipeline's seeds, fiftieth session). So
+    each half of the table (``sh``'s top bit 0 or 1) is a :class:`~hdl._lookup.
+    RegisteredLookup` by the other four bits, one LUT4 a bit, and the top bit, registered
+    beside them, chooses a clock later: a LUT of three registers. ``sh`` is written between
+    frames, and the bounds are read at the end of the filter's pipeline."""
     big = 1 << (acc_width + 1)
     bound = signed(acc_width + 3)
-    over_at, under_at = Signal(bound), Signal(bound)
-    with m.Switch(sh):
-        for v in range(1 << len(sh)):
-            o_at = _Y_HI + 1 if v == 0 else (2 * _Y_HI + 1) << (v - 1)
-            u_at = _Y_LO if v == 0 else (2 * _Y_LO - 1) << (v - 1)
-            with m.Case(v):
-                m.d.sync += [over_at.eq(min(o_at, big)), under_at.eq(max(u_at, -big))]
-    return over_at, under_at
+    half = 1 << (len(sh) - 1)
+
+    def bounds(v):
+        o_at = _Y_HI + 1 if v == 0 else (2 * _Y_HI + 1) << (v - 1)
+        u_at = _Y_LO if v == 0 else (2 * _Y_LO - 1) << (v - 1)
+        return min(o_at, big), max(u_at, -big)
+
+    top = _reg(m, sh[-1], 1, "sat_sh_top", True)
+    out = []
+    for i, name in enumerate(("over", "under")):
+        halves = []
+        for h in range(2):
+            look = RegisteredLookup([bounds(h * half + v)[i] for v in range(half)], bound)
+            m.submodules[f"sat_{name}{h}"] = look
+            q = Signal(bound, name=f"sat_{name}{h}_q")  # (named: the netlist shows it)
+            m.d.comb += [look.sel.eq(sh[:-1]), q.eq(look.q)]
+            halves.append(q)
+        at = Signal(bound, name=f"{name}_at")
+        m.d.sync += at.eq(Mux(top, halves[1], halves[0]))
+        out.append(at)
+    return tuple(out)
 
 
 def _ge_split(m: Module, a, b, name: str):
