@@ -202,9 +202,8 @@ class FramePacketizer(wiring.Component):
             """Set `adv` for the next clock (and `word_en` where the word loads)."""
             return [adv.eq(value), *([word_en.eq(value)] if loads_word else [])]
 
-        hcrc = m.submodules.hcrc = HEADER_CRC(data_width=8).create()
         # The CRC-32 is restarted by `clear`, a synchronous reset, at a clock before the body
-        # (the link header's first CRC-16 byte), not by a `start` with the first body byte:
+        # (the link header's second sync byte), not by a `start` with the first body byte:
         # `start` is a mux on every input of its XOR trees (`start` -> the trees -> `crc_reg`
         # was the packetizer's worst path, 5.65 ns, 4.2 of it routing); a reset is the
         # flip-flops' own LSR pin. The previous packet's CRC bytes are out by then, and no body
@@ -213,6 +212,16 @@ class FramePacketizer(wiring.Component):
         # trees of 17 inputs, was the pipeline's worst path, 6.49 ns), so the CRC state trails
         # its bytes by two clocks and the CRC bytes wait one clock (`crc_wait`).
         bcrc = m.submodules.bcrc = SplitCRC(BODY_CRC(data_width=8))
+        # The CRC-16 is a SplitCRC too, restarted by `clear` at the link header's second
+        # sync byte and fed the header's bytes from `pkt` as they are chosen (`hv`), a clock
+        # before the output register `q_byte` holds them: its data term's register stands
+        # where `q_byte` stood, so its state is ready when its bytes are sent, as the
+        # library's processor fed from `q_byte` was. That processor's `start` (the initial
+        # value chosen in front of every XOR tree) put four LUT levels into its register,
+        # which missed 200 MHz on every seed of the recorded one-lane pipeline (fiftieth
+        # session); `pkt[:8]` is the byte itself in LINK_HEADER (`byte` ORs in `byte_sh` and
+        # `item`, zero there, which put a third level into the data term).
+        hcrc = m.submodules.hcrc = SplitCRC(HEADER_CRC(data_width=8))
 
         hdr = Signal(FRAME_HEADER_LAYOUT)
         res = Signal(PEAK_RESULT)
@@ -431,10 +440,10 @@ class FramePacketizer(wiring.Component):
         w_last = Signal()
         hv, hs, bv = Signal(), Signal(), Signal()
         src = Signal(2)  # 0: `byte`, 1: header CRC low byte, 2: its high byte, 3: a CRC-32 byte
-        q_byte, q_last, q_hv, q_hs, q_bv = Signal(8), Signal(), Signal(), Signal(), Signal()
+        q_byte, q_last, q_hs, q_bv = Signal(8), Signal(), Signal(), Signal()
         q_src = Signal(2)
         q_crc_i = Signal.like(crc_i)
-        m.d.sync += [put.eq(w_en), q_byte.eq(byte), q_last.eq(w_last), q_hv.eq(hv),
+        m.d.sync += [put.eq(w_en), q_byte.eq(byte), q_last.eq(w_last),
                      q_hs.eq(hs), q_bv.eq(bv), q_src.eq(src), q_crc_i.eq(crc_i)]
         out = Signal(8)
         with m.Switch(q_src):
@@ -452,7 +461,7 @@ class FramePacketizer(wiring.Component):
         m.d.comb += [
             fifo.w_en.eq(put_q),
             fifo.w_keep.eq(put_q),
-            hcrc.data.eq(q_byte), hcrc.valid.eq(q_hv), hcrc.start.eq(q_hs),
+            hcrc.data.eq(pkt[:8]), hcrc.valid.eq(hv), hcrc.clear.eq(hs),
             bcrc.data.eq(q_byte), bcrc.valid.eq(q_bv), bcrc.clear.eq(q_hs),
         ]
 
@@ -527,7 +536,7 @@ class FramePacketizer(wiring.Component):
         with fsm.state("LINK_HEADER"):
             m.d.comb += [w_en.eq(1),
                          src.eq(Mux(pos[6], 1, Mux(pos[7], 2, 0))),
-                         hv.eq(pos[2:6].any()), hs.eq(pos[2])]
+                         hv.eq(pos[2:6].any()), hs.eq(pos[1])]
             m.d.sync += [pkt.eq(pkt >> 8), pos.eq(pos << 1)]
             # two reads (`adv` at pos 0 and 1) fill the buffer's read stages: words 0
             # and 1 (for a frame of one word or none, the reads beyond are of stale words,
