@@ -30,7 +30,7 @@ from typing import NamedTuple
 from amaranth.hdl import Cat, Const, Mux, Signal, unsigned
 from amaranth.lib import data
 
-from ._peak_common import _POS, thr_as_key
+from ._peak_common import _KEY_HI, _POS
 from ._primitives import _delay, _delay_to, _reg, _sub_sign
 from .matched_filter import TAG_WIDTH
 from .peak_detect import _KEY, _RISE, _Y, record_layout
@@ -356,18 +356,32 @@ def _best_lane(m, rule, L, depth, e_r, run_min, elig_v, thr, LA):
     # against thr capped at the largest key, registered once per frame (the 33-bit compare
     # with the 32-bit thr was the next worst path)
     if not LA:
-        thr_k = _reg(m, thr_as_key(thr), unsigned(_KEY.width - 1), "thr_k")
+        # in two clocks: the test of thr's high bits registered beside a copy of its low
+        # ones, then the choice (in one, the test's OR tree and the choice were three LUT
+        # levels, and thr_k missed 200 MHz on four of ten placements of the detector alone,
+        # fifty-first session). A frame's thr is loaded long before its first candidate beat
+        # gets here (the beat waits in D1 for it, then passes D2a to R). (The cap itself is
+        # never seen: a thr past the largest key is past every y - mu, so no peak is
+        # eligible; it keeps the compare 25 bits wide.)
+        key_w = unsigned(_KEY.width - 1)
+        thr_big = _reg(m, thr[_KEY.width - 1:].any(), 1, "thr_big")
+        thr_lo = _reg(m, thr[:_KEY.width - 1], key_w, "thr_lo")
+        thr_k = _reg(m, Mux(thr_big, _KEY_HI, thr_lo), key_w, "thr_k")
     else:  # the frame's, carried with its beats from D1 (go) to here
         thr_k = _delay_to(m, thr, 2 * depth + 6, "la_thr_k")
-    over = [_reg(m, ~rule[2] | _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1,
-                 f"key_over{j}") for j in range(L)]
+    # thr_k < key: the chain's own sign; rule 2's test (`~rule[2] |` it) is made in the
+    # leaf's LUT (rule 14: OR-ed before its register, the sign had a LUT after its chain,
+    # and `key_over0` missed on every seed of the recorded one-lane pipeline)
+    over = [_reg(m, _sub_sign(m, thr_k, keys[j], f"key_over{j}"), 1, f"key_over{j}")
+            for j in range(L)]
     keys = [_reg(m, k, _KEY, f"key_k{j}") for j, k in enumerate(keys)]
     elig_r = _delay(m, elig_v, 2, "elig_r")[-1]
     node = data.StructLayout({"ok": 1, "key": _KEY, "idx": range(L)})
     level = []
     for j in range(L):
         nd = Signal(node, name=f"leaf{j}")
-        m.d.sync += [nd.ok.eq(elig_r[j] & over[j]), nd.key.eq(keys[j]), nd.idx.eq(j)]
+        m.d.sync += [nd.ok.eq(elig_r[j] & (~rule[2] | over[j])), nd.key.eq(keys[j]),
+                     nd.idx.eq(j)]
         level.append(nd)
     # the max-tree: the later lane wins only with a larger key (earliest on a tie; rule 0's
     # key is the lane, so the latest eligible lane wins)
