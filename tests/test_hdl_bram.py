@@ -17,10 +17,9 @@ byte enables, banks and their select, enables), not the cell itself.
 from __future__ import annotations
 
 import random
-import sys
 
 import pytest
-from amaranth.hdl import Elaboratable, Fragment, Module
+from amaranth.hdl import Module
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
@@ -28,8 +27,7 @@ from amaranth.sim import Simulator
 from hdl._bram import BlockRAM, _tiling
 from hdl._primitives import _Store
 from hdl.export import to_verilog
-from hdl.synth import ECP5_SYNTH
-from hdl.tb.cosim import BENCH_DIR, Design, build
+from hdl.tb.cosim import AsEcp5, Design, run_cocotb_module
 
 # ---------------------------------------------------------------------------------------------
 # Tiling
@@ -252,14 +250,6 @@ endmodule
 """
 
 
-class _AsEcp5(Elaboratable):
-    def __init__(self, inner):
-        self.inner = inner
-
-    def elaborate(self, platform):
-        return Fragment.get(self.inner, ECP5_SYNTH)
-
-
 class BramTwin(wiring.Component):
     """Two block RAMs of one shape on the same inputs: ``hw`` elaborated for the ECP5."""
 
@@ -273,7 +263,7 @@ class BramTwin(wiring.Component):
         m = Module()
         hw = BlockRAM(self.width, self.depth, self.max_banks)
         plain = BlockRAM(self.width, self.depth, self.max_banks)
-        m.submodules.hw = _AsEcp5(hw)
+        m.submodules.hw = AsEcp5(hw)
         m.submodules.plain = plain
         for ram in (hw, plain):
             m.d.comb += [ram.w_addr.eq(self.w_addr), ram.w_data.eq(self.w_data),
@@ -292,25 +282,8 @@ class _TwinDesign(Design):
     (42, 4096, None), (9, 32768, None), (9, 32768, 2), (24, 4096, None), (24, 768, None),
     (2, 20000, None)])
 def test_ecp5_against_plain(tmp_path, width, depth, max_banks):
-    from cocotb_tools.check_results import get_results
-    from cocotb_tools.runner import get_runner
-
     design = _TwinDesign(BramTwin, width=width, depth=depth,
                          **({"max_banks": max_banks} if max_banks else {}))
-    build_dir = build(design)
-    if str(BENCH_DIR) not in sys.path:
-        sys.path.insert(0, str(BENCH_DIR))  # the runner hands sys.path to the simulator
     block = _tiling(width, depth, max_banks)[1]
-    results = tmp_path / "results.xml"
-    try:
-        get_runner("verilator").test(
-            hdl_toplevel=design.name, hdl_toplevel_lang="verilog", test_module="cocotb_bram",
-            build_dir=build_dir, test_dir=tmp_path, timescale=("1ns", "1ps"),
-            extra_env={"ALBCAP_BRAM": f"{width},{depth},{block},4000,{width * depth}",
-                       "COCOTB_REWRITE_ASSERTION_FILES": "cocotb_*.py"},
-            log_file=tmp_path / "sim.log", results_xml=str(results))
-    except (SystemExit, RuntimeError):
-        pass
-    tests, failed = get_results(results)
-    log = (tmp_path / "sim.log").read_text()
-    assert (tests, failed) == (1, 0), log[-3000:]
+    run_cocotb_module(design, tmp_path, "cocotb_bram",
+                      {"ALBCAP_BRAM": f"{width},{depth},{block},4000,{width * depth}"})

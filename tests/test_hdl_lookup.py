@@ -11,10 +11,9 @@ checks ``INIT`` against the table in Python.
 from __future__ import annotations
 
 import random
-import sys
 
 import pytest
-from amaranth.hdl import Elaboratable, Fragment, Module, signed, unsigned
+from amaranth.hdl import Fragment, Module, signed, unsigned
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
@@ -22,7 +21,7 @@ from amaranth.sim import Simulator
 from hdl._lookup import RegisteredLookup, lut4_init
 from hdl.export import to_verilog
 from hdl.synth import ECP5_SYNTH
-from hdl.tb.cosim import BENCH_DIR, Design, build
+from hdl.tb.cosim import AsEcp5, Design, run_cocotb_module
 
 LUT4_MODEL = """
 module LUT4 #(parameter [15:0] INIT = 16'h0000) (input A, input B, input C, input D, output Z);
@@ -88,14 +87,6 @@ def test_plain_by_select(case):
     assert got == table + [0] * ((1 << len(dut.sel)) - len(table))
 
 
-class _AsEcp5(Elaboratable):
-    def __init__(self, inner):
-        self.inner = inner
-
-    def elaborate(self, platform):
-        return Fragment.get(self.inner, ECP5_SYNTH)
-
-
 class LookupTwin(wiring.Component):
     """Two lookups of ``CASES[case]`` on the same select: ``hw`` elaborated for the ECP5."""
 
@@ -108,7 +99,7 @@ class LookupTwin(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         hw, plain = (RegisteredLookup(self.table, self.shape) for _ in range(2))
-        m.submodules.hw = _AsEcp5(hw)
+        m.submodules.hw = AsEcp5(hw)
         m.submodules.plain = plain
         m.d.comb += [hw.sel.eq(self.sel), plain.sel.eq(self.sel), self.hw_q.eq(hw.q),
                      self.plain_q.eq(plain.q)]
@@ -131,24 +122,6 @@ def test_ecp5_instances():
 
 @pytest.mark.parametrize("case", range(len(CASES)))
 def test_ecp5_against_plain(tmp_path, case):
-    from cocotb_tools.check_results import get_results
-    from cocotb_tools.runner import get_runner
-
-    design = _TwinDesign(LookupTwin, case=case)
-    build_dir = build(design)
-    if str(BENCH_DIR) not in sys.path:
-        sys.path.insert(0, str(BENCH_DIR))  # the runner hands sys.path to the simulator
     width = max(1, (len(CASES[case][0]) - 1).bit_length())
-    results = tmp_path / "results.xml"
-    try:
-        get_runner("verilator").test(
-            hdl_toplevel=design.name, hdl_toplevel_lang="verilog", test_module="cocotb_lookup",
-            build_dir=build_dir, test_dir=tmp_path, timescale=("1ns", "1ps"),
-            extra_env={"ALBCAP_LOOKUP": f"{width},200,{case}",
-                       "COCOTB_REWRITE_ASSERTION_FILES": "cocotb_*.py"},
-            log_file=tmp_path / "sim.log", results_xml=str(results))
-    except (SystemExit, RuntimeError):
-        pass
-    tests, failed = get_results(results)
-    log = (tmp_path / "sim.log").read_text()
-    assert (tests, failed) == (1, 0), log[-3000:]
+    run_cocotb_module(_TwinDesign(LookupTwin, case=case), tmp_path, "cocotb_lookup",
+                      {"ALBCAP_LOOKUP": f"{width},200,{case}"})

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from amaranth.hdl import Elaboratable, Fragment
 
 from ..export import to_verilog
 from .streams import (
@@ -40,7 +41,8 @@ from .streams import (
     save_bundle,
 )
 
-__all__ = ["BenchResult", "Design", "Sink", "Source", "build", "cfg_ports", "run"]
+__all__ = ["AsEcp5", "BenchResult", "Design", "Sink", "Source", "build", "cfg_ports", "run",
+           "run_cocotb_module"]
 
 REPO = Path(__file__).resolve().parents[2]
 WAVES_ENV = "ALBCAP_WAVES"
@@ -287,6 +289,58 @@ def cfg_ports(config, group: str, prefix: str = "cfg") -> dict[str, int]:
     from model.registers import REGISTERS
 
     return {f"{prefix}__{r.name}": getattr(config, r.name) for r in REGISTERS if r.group == group}
+
+
+def run_cocotb_module(design: Design, run_dir, test_module: str, env: dict) -> None:
+    """Build ``design`` and run the cocotb test module ``test_module`` (a file of
+    ``tests/``) on it in Verilator; every test in it must pass (one at least), else the
+    simulator log's tail is the error. For benches of their own (a twin of an ECP5
+    elaboration against the plain one), where :func:`run`'s stream bench does not fit.
+
+    Parameters
+    ----------
+    design : Design
+        What to build (cached).
+    run_dir : path
+        Directory for the results and the simulator log (a pytest ``tmp_path``).
+    test_module : str
+        The cocotb module, e.g. ``"cocotb_bram"``.
+    env : dict of str to str
+        The module's environment (its parameters).
+    """
+    from cocotb_tools.check_results import get_results
+    from cocotb_tools.runner import get_runner
+
+    build_dir = build(design)
+    if str(BENCH_DIR) not in sys.path:
+        sys.path.insert(0, str(BENCH_DIR))  # the runner hands sys.path to the simulator
+    run_dir = Path(run_dir)
+    results, log = run_dir / "results.xml", run_dir / "sim.log"
+    try:
+        get_runner("verilator").test(
+            hdl_toplevel=design.name, hdl_toplevel_lang="verilog", test_module=test_module,
+            build_dir=build_dir, test_dir=run_dir, timescale=("1ns", "1ps"),
+            extra_env={**env, "COCOTB_REWRITE_ASSERTION_FILES": "cocotb_*.py"},
+            log_file=log, results_xml=str(results))
+    except (SystemExit, RuntimeError):
+        pass  # (a failed test ends the runner so; the results say which)
+    tests, failed = get_results(results) if results.exists() else (0, 0)
+    tail = log.read_text()[-3000:] if log.exists() else "(no log)"
+    assert tests >= 1 and failed == 0, f"{test_module}: {failed} of {tests} failed\n{tail}"
+
+
+class AsEcp5(Elaboratable):
+    """``inner`` elaborated with the ECP5 platform of the figures (``hdl.synth.ECP5_SYNTH``),
+    whatever the platform of its parent: the vendor-cell twin of a component, beside its
+    plain elaboration in one Verilator build."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def elaborate(self, platform):
+        from hdl.synth import ECP5_SYNTH
+
+        return Fragment.get(self.inner, ECP5_SYNTH)
 
 
 def run(design: Design, run_dir, *, sources: dict, sinks: dict, static: dict | None = None,
