@@ -24,7 +24,7 @@ the loops decide, from the beat's copy, and no wide mux hangs on a loop compare.
 from __future__ import annotations
 
 from functools import reduce
-from operator import and_, or_
+from operator import or_
 from typing import NamedTuple
 
 from amaranth.hdl import Cat, Const, Mux, Signal, unsigned
@@ -180,8 +180,7 @@ def _local_maxima(m, L, go, d1, d1_base, d1_needs, d1_tag, cand_at, dec_bound, d
     d2 = _reg(m, d2a, beat, "d2")
     d2_valid = _reg(m, d2a_valid, 1, "d2_valid")
     d2_peak, d2_speak = Signal(L), Signal(L)
-    peak = [reduce(and_, [~t if i == 1 else t for i, t in enumerate(tests[j])])
-            for j in range(L)]
+    peak = [ab & ~bc_lt & k_eq & cand & thr for ab, bc_lt, k_eq, cand, thr in tests]
     speak = [peak[j] & s_tests[j] for j in range(L)]
     m.d.sync += [d2_peak[j].eq(peak[j]) for j in range(L)]
     m.d.sync += [d2_speak[j].eq(speak[j]) for j in range(L)]

@@ -109,6 +109,11 @@ def _levels(lanes: int) -> int:
     return (lanes - 1).bit_length()
 
 
+#: Clocks of the plain input's register H, counted in SURFACE_LATENCY and RESULT_LATENCY; the
+#: lookahead's FIFO stands in its place.
+_H = 1
+
+
 def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
     """``(surface, result, bubble)`` in clocks for ``lanes`` samples per clock.
 
@@ -156,9 +161,8 @@ def latencies(lanes: int, lookahead: int = 0) -> tuple[int, int, int]:
     if not lookahead:
         return SURFACE_LATENCY, RESULT_LATENCY + 4 * d, THRESHOLD_BUBBLE + 2 * d
     hides = lookahead_hides(lanes)
-    # (the lookahead's FIFO stands where the plain input has its register H: a clock less)
-    return (SURFACE_LATENCY - 1 + max(lookahead, hides - 1),
-            RESULT_LATENCY - 1 + 4 * d + lookahead, max(0, hides - lookahead))
+    return (SURFACE_LATENCY - _H + max(lookahead, hides - 1),
+            RESULT_LATENCY - _H + 4 * d + lookahead, max(0, hides - lookahead))
 
 
 def lookahead_hides(lanes: int) -> int:
