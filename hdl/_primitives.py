@@ -80,6 +80,16 @@ def _reg(m, value, shape, name, reset_less=False):
     return s
 
 
+def _cut(m, value, name):
+    """``value`` on a wire that Yosys keeps (the ``keep`` attribute): ABC maps the logic on
+    either side of it apart, so the wire is a LUT's output. For a choice that must stay one
+    LUT of registers, where ABC would merge it with its consumers' logic and share a
+    handshake's AND across them, deeper."""
+    s = Signal(value.shape(), name=name, attrs={"keep": 1})
+    m.d.comb += s.eq(value)
+    return s
+
+
 def _delay(m, value, n, name, shape=None):
     """``value`` delayed ``n`` clocks (free running); a list of all ``n + 1`` taps."""
     shape = value.shape() if shape is None else shape

@@ -7,25 +7,26 @@ feeds :class:`~hdl.peak_detect.PeakDetect` and, through a stream fork, the ``y``
 Feedback bound. The detector accepts ``y[s + 1]`` on some clock edge ``T`` and raises the surface
 message ``SURFACE_LATENCY`` clocks later (its decision is pipelined); the filter takes it at edge
 ``T + SURFACE_LATENCY`` and it acts on samples accepted ``SURFACE_APPLY`` edges after that one
-(the filter makes its template compares a clock ahead). Between the filter's input and the
-detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one per pipeline register;
-a stall holds them, it never adds any), so by then the filter has accepted samples up to
-``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of them before the surface
-was known. They must all still use template 0, so the join is exact for
-``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (23 at one
-lane), below the register's floor of 25; the pipeline's join, with a register slice before its
-fork, needs 25, the floor itself (:attr:`FilterDetect.min_bin_offset`), so a clock more in the
-filter, on the detector's surface path or at the fork needs the floor raised (as the
-detector's input register H raised it from 24, fifty-first session). Tested at the
-floor with surfaces on plain, idle and back-pressured traffic, and with more lanes at
-``min_bin_offset`` itself (``tests/test_hdl_detect_lanes.py``).
+(the filter registers its template compares and chooses among them a clock later). Between the
+filter's input and the detector's input sit at most ``hdl.matched_filter.LATENCY`` samples (one
+per pipeline register; a stall holds them, it never adds any), so by then the filter has
+accepted samples up to ``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of
+them before the surface was known. They must all still use template 0, so the join is exact for
+``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (24 at one
+lane), below the register's floor of 26; the pipeline's join, with a register slice before its
+fork, needs 26, the floor itself (:attr:`FilterDetect.min_bin_offset`), so a clock more in the
+filter, on the detector's surface path or at the fork needs the floor raised (as the detector's
+input register H raised it from 24, fifty-first session, and the filter's registered switch
+compares from 25, fifty-second). Tested at the floor with surfaces on plain, idle and
+back-pressured traffic, and with more lanes at ``min_bin_offset`` itself
+(``tests/test_hdl_detect_lanes.py``).
 
 With the detector's lookahead (``lookahead = D`` beats, :class:`~hdl.peak_detect.PeakDetect`)
 the beat holding ``y[s + 1]`` may wait behind ``D`` others in the detector's FIFO, so up to
 ``surface_latency = 4 + max(D, lookahead_hides - 1)`` beats are taken before the message is
 valid: ``min_bin_offset`` grows by ``lanes x (surface_latency - 5)`` (``lanes x (D - 1)`` when
 the lookahead hides the threshold wait: the FIFO stands where the plain detector has its input
-register H), above the register's floor even at one lane (42 with
+register H), above the register's floor even at one lane (43 with
 ``D = 20``); a bank for such a build must respect it. In exchange ``frame_gap_clocks`` is 0.
 Tested at ``min_bin_offset`` with one and three lanes.
 """
@@ -94,7 +95,7 @@ class FilterDetect(wiring.Component):
         the fork (the pipeline's worst path on two nextpnr seeds, ``docs/fpga-history.md`` run 46;
         the 10 x 12 join's, twenty-sixth session). Each delays the fed-back surface by up to
         two beats (its two entries): :attr:`min_bin_offset` grows by ``2 lanes`` a slice, to
-        25 at one lane with one, the register's floor. A second slice gives the placer a
+        26 at one lane with one, the register's floor. A second slice gives the placer a
         register to put beside the detector when the first sits beside the filter (the
         10 x 12 join with one: the slice -> the detector's input decision, 3.9 ns of routing
         across the part). Off by default (a many-lane join's figure is without it unless its
@@ -123,7 +124,7 @@ class FilterDetect(wiring.Component):
     min_bin_offset : int
         The join is exact for ``bin_offset >= min_bin_offset`` (:data:`MIN_BIN_OFFSET` at one
         lane without a lookahead, below the register's floor; ``lanes x (filter latency +
-        surface latency + SURFACE_APPLY) + 1`` in general, ``MatchedFilter.max_unsurfaced``,
+        surface latency + surface_apply) + 1`` in general, ``MatchedFilter.max_unsurfaced``,
         with the detector's worst-case ``surface_latency``). A bank for a multi-lane or
         lookahead build must respect it.
     frame_gap_clocks : int

@@ -20,7 +20,7 @@ costs: DSPs ``engines x (taps_max + 2)``; one frame store per engine; the
 ``filtered`` payload (``y`` of every sample) is not kept, since frames leave the engines out
 of order in time (only the results are collected in order); the fed-back surface stays the
 one-lane join's, so the bank's first template switch may lie as shallow as
-:attr:`InterleavedDetect.min_bin_offset` (17 samples at 8 taps, 22 at 64), not ``lanes``
+:attr:`InterleavedDetect.min_bin_offset` (18 samples at 8 taps, 24 at 64), not ``lanes``
 times deeper.
 
 Throughput. The input takes a beat per clock while the engine whose turn it is has room; an
@@ -92,7 +92,7 @@ class InterleavedDetect(wiring.Component):
     templates, taps : In
         ``K`` and ``L`` of the bank, as :class:`~hdl.detect.FilterDetect`.
     min_bin_offset : int
-        The one-lane join's bound (17 samples at 8 taps, 22 at 64, more with a lookahead): a
+        The one-lane join's bound (18 samples at 8 taps, 24 at 64, more with a lookahead): a
         bank is exact on this build for ``bin_offset >= min_bin_offset``.
     frame_gap_clocks : int
         Clocks an engine spends on a frame beyond its samples (the detector's threshold

@@ -35,7 +35,7 @@ from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
 from ._lookup import RegisteredLookup
-from ._primitives import _fills, _le, _output_buffer, _reg, _step
+from ._primitives import _cut, _fills, _le, _output_buffer, _reg, _step
 from .layouts import STITCHED, config_signature
 
 __all__ = [
@@ -47,6 +47,7 @@ __all__ = [
     "N_WIDTH",
     "SURFACE",
     "SURFACE_APPLY",
+    "SURFACE_APPLY_LANES",
     "TAG_WIDTH",
     "MatchedFilter",
     "RegisteredMultiplier",
@@ -70,8 +71,11 @@ LATENCY = 15
 CAPACITY = LATENCY + 1
 
 #: Clock edges from the one that takes a surface message to the first one whose accepted sample
-#: uses it (the template compares are made a clock ahead; see :class:`MatchedFilter`).
-SURFACE_APPLY = 2
+#: uses it, one lane: the compares with the switch sample are registered, and chosen a clock
+#: later into the flags the template reads (see :class:`MatchedFilter`).
+SURFACE_APPLY = 3
+#: The same with lanes (``hdl._filter_lanes``): its compares are made a clock ahead.
+SURFACE_APPLY_LANES = 2
 
 _K_SHAPE = unsigned((K_MAX - 1).bit_length())
 _J_BITS = (L_MAX - 1).bit_length()
@@ -512,10 +516,11 @@ class MatchedFilter(wiring.Component):
       64; one more with ``window_reg``): the window and templates, the operands, the
       multiplier's two registers, the adder tree, shift and round.
       One beat per clock sustained; the output buffer holds ``latency + 1`` beats.
-    * A surface taken at one edge acts on beats accepted :data:`SURFACE_APPLY` = 2 edges later,
-      as one lane; its switch sample ``s + bin_offset`` may sit in any lane of such a beat. A
-      surface given ahead is taken the clock after its frame's first beat, so it acts from the
-      frame's fourth beat on: ``s + bin_offset >= 3 * lanes`` is needed in that use. Joined,
+    * A surface taken at one edge acts on beats accepted :data:`SURFACE_APPLY_LANES` = 2 edges
+      later (one lane: :data:`SURFACE_APPLY` = 3); its switch sample ``s + bin_offset`` may
+      sit in any lane of such a beat. A surface given ahead is taken the clock after its
+      frame's first beat, so it acts from the frame's fourth beat on: ``s + bin_offset >= 3 *
+      lanes`` is needed in that use. Joined,
       see :meth:`max_unsurfaced`.
     * Only the first surface message of a frame is used (later ones are taken and ignored).
 
@@ -526,6 +531,10 @@ class MatchedFilter(wiring.Component):
     latency : int
         Clocks from an accepted beat to its output with no backpressure (:data:`LATENCY` for
         the one-lane design).
+    surface_apply : int
+        Clock edges from the one that takes a surface message to the first whose accepted
+        beat uses it (:data:`SURFACE_APPLY` for the one-lane design,
+        :data:`SURFACE_APPLY_LANES` with lanes).
     i : In(stream.Signature(filter_in_layout(lanes)))
         Samples ``x`` (s16) with ``first``/``last``; ``first`` clears the delay line (the
         samples before it count as 0) and the surface, and starts a new frame tag.
@@ -571,10 +580,12 @@ class MatchedFilter(wiring.Component):
 
     Template selection counts samples, with no divider: when the frame reaches sample
     ``s + bin_offset`` it switches to template 1 (``min(1, K - 1)``), then one template further
-    every ``bin_len`` samples up to ``K - 1``. The compares are made a clock ahead, so a surface
-    taken at one clock edge acts on samples accepted :data:`SURFACE_APPLY` = 2 edges later; it
-    must therefore be taken two edges before the filter accepts sample ``s + bin_offset``;
-    :class:`~hdl.detect.FilterDetect` documents the bound.
+    every ``bin_len`` samples up to ``K - 1``. The compares are registered, and chosen a clock
+    later by what the port did meanwhile into flags a clock ahead of the sample, so a surface
+    taken at one clock edge acts on samples accepted :data:`SURFACE_APPLY` = 3 edges later
+    (``surface_apply``; 2 with lanes); it must therefore be taken that many edges before the
+    filter accepts sample ``s + bin_offset``; :class:`~hdl.detect.FilterDetect` documents the
+    bound.
 
     Known failure modes: a surface that arrives too late (its switch sample already accepted)
     leaves template 0 for the rest of the frame. Register changes act on samples accepted from
@@ -612,10 +623,11 @@ class MatchedFilter(wiring.Component):
         #: the lanes design's window read from its registers, a clock later
         self.window_reg = window_reg
         if self._one_lane:
-            self.latency = LATENCY
+            self.latency, self.surface_apply = LATENCY, SURFACE_APPLY
         else:
             from . import _filter_lanes
             self.latency = _filter_lanes.latency(taps_max, window_reg)
+            self.surface_apply = SURFACE_APPLY_LANES
         super().__init__({
             "i": In(stream.Signature(filter_in_layout(lanes))),
             "o": Out(stream.Signature(filter_out_layout(lanes))),
@@ -643,14 +655,14 @@ class MatchedFilter(wiring.Component):
         Returns
         -------
         int
-            ``lanes * (latency + surface_delay + SURFACE_APPLY)``: the filter may have accepted
+            ``lanes * (latency + surface_delay + surface_apply)``: the filter may have accepted
             samples up to ``s`` plus this many before the surface acts, so the join is exact for
             ``bin_offset >= max_unsurfaced(surface_delay) + 1``. Derivation: at most
             ``latency`` beats are accepted after the one holding ``y[s + 1]`` (which holds up to
             ``lanes - 1`` more samples) by the edge the consumer takes it, and one per clock
-            until ``SURFACE_APPLY`` edges after the message is taken.
+            until ``surface_apply`` edges after the message is taken.
         """
-        return self.lanes * (self.latency + surface_delay + SURFACE_APPLY)
+        return self.lanes * (self.latency + surface_delay + self.surface_apply)
 
     def elaborate(self, platform):
         if not self._one_lane:
@@ -676,17 +688,20 @@ class MatchedFilter(wiring.Component):
         # The template of an accepted sample must be a few LUTs from registers (it fans out to
         # every coefficient memory), so the compares it needs are made one clock ahead, for
         # "the next sample, if it does not start a frame": `match` (it is the switch sample
-        # s + bin_offset) and `bin_end` (its bin is full). For that, `n1` holds n + 1, and a
-        # surface taken at one edge (`s_pend`) enters the compare from the next: it acts on
-        # samples accepted SURFACE_APPLY = 2 edges on. `bin_end` needs no compare: the bin is
+        # s + bin_offset) and `bin_end` (its bin is full). For that, `n1` and `n2` hold n + 1
+        # and n + 2, and a surface taken at one edge (`s_pend`) enters the compares from the
+        # next, chosen from the one after: it acts on samples accepted SURFACE_APPLY = 3 edges
+        # on. `bin_end` needs no compare: the bin is
         # counted down in `left` (samples still to come in it, minus one), and a full bin is
         # the sign of `left`; `left1` = left - 1 is the next value and its sign the next flag,
         # so the accepted sample only chooses between register bits.
         n = Signal(N_WIDTH)  # index of the next sample of the frame
         n1 = Signal(N_WIDTH, init=1)  # n + 1 (modulo 2^N_WIDTH, as n)
+        n2 = Signal(N_WIDTH, init=2)  # n + 2
         tag = Signal(TAG_WIDTH, init=(1 << TAG_WIDTH) - 1)  # so the first frame is tag 0
         s_pend = Signal()  # the frame's surface was taken (start holds s + bin_offset)
-        start = Signal(N_WIDTH + 1 + by_name("bin_offset").width)  # s + bin_offset
+        s_near = Signal()  # s + bin_offset < 2^N_WIDTH (a sample of the frame reaches it)
+        start = Signal(N_WIDTH)  # s + bin_offset, modulo 2^N_WIDTH
         k = Signal(_K_SHAPE)  # template of the last accepted sample
         left = Signal(signed(by_name("bin_len").width + 1))  # bin_len - 1 - samples in the bin
         left1 = Signal.like(left)  # left - 1
@@ -702,10 +717,15 @@ class MatchedFilter(wiring.Component):
         # `start` loads any offered message until the frame's surface is taken: it is read
         # only once `s_pend` is set, which happens at the edge that loads the frame's own, so
         # its ~30 enables wait on two registers, not on the tag compare (tag -> `==` -> the
-        # enables of `start` was the filter's worst path, 5.0 ns, 3.5 of it routing).
+        # enables of `start` was the filter's worst path, 5.0 ns, 3.5 of it routing). Its
+        # high bits are not kept: "a sample reaches it" is loaded beside it (`s_near`), so
+        # the compares with n are as wide as n. (Loaded with the take, as `s_pend`, `s_near`
+        # was the one-lane pipeline's worst path on two placements of three: the port's
+        # handshake -> three LUTs -> its enable, 5.69 and 5.79 ns.)
         m.d.comb += self.surface.ready.eq(surface_ready(self, tag))
+        start_sum = self.surface.payload.n + cfg.bin_offset
         with m.If(self.surface.valid & ~s_pend):
-            m.d.sync += start.eq(self.surface.payload.n + cfg.bin_offset)
+            m.d.sync += [start.eq(start_sum[:N_WIDTH]), s_near.eq(start_sum[N_WIDTH:] == 0)]
         with m.If(self.surface.valid & (self.surface.payload.tag == tag) & ~(accept & d.first)):
             m.d.sync += s_pend.eq(1)
 
@@ -754,7 +774,8 @@ class MatchedFilter(wiring.Component):
             m.d.sync += [k_up.eq(k_up_nf), up_top.eq(up_top_nf)]
 
         with m.If(accept):
-            m.d.sync += [n.eq(Mux(d.first, 1, n1)), n1.eq(Mux(d.first, 2, n1 + 1)), k.eq(k_sel)]
+            m.d.sync += [n.eq(Mux(d.first, 1, n1)), n1.eq(Mux(d.first, 2, n2)),
+                         n2.eq(Mux(d.first, 3, n2 + 1)), k.eq(k_sel)]
             with m.If(d.first):
                 m.d.sync += [tag.eq(tag + 1), s_pend.eq(0)]
         # The bin count moves on an accepted sample that is not a frame's first and is the
@@ -771,34 +792,52 @@ class MatchedFilter(wiring.Component):
             m.d.sync += [left.eq(Mux(bin_restart, len_m2, left1)),
                          left1.eq(Mux(bin_restart, len_m3, left1 - 1))]
         # "the next sample is s + bin_offset" (`match`) and "a sample at or past it was taken"
-        # (`active`: k(n) >= 1 territory), both from compares made a clock ahead, for the
-        # sample n1 if one is accepted now, else n, once the frame's surface is known (the
-        # surface taken, and not by this frame if an accepted sample starts the next): n1 ==
-        # start and n1 > start (that is n >= start), or n == start and n > start. `active`
-        # was a set-clear register of its own, set by an accepted `match`: its next value
-        # then hung on `match`, and that loop (active -> match -> the enables of `active`)
-        # was the pipeline's worst path in two seeds of three (7.4 and 8.1 ns, three
-        # quarters of it routing). Now neither has state, and each is a register: as an AND
-        # of a register `known` with each, the template update was three LUTs from `known`
-        # (`known` -> `k_up`'s reset, the one-lane pipeline's worst path on seed 2, 5.61 ns,
-        # and the filter alone's on seed 1, 5.69 ns, thirty-ninth session). The two are the
-        # same once the surface is known before n reaches start, which `bin_offset >=
-        # max_unsurfaced + 1` guarantees (the register's floor). The compares cannot be made
-        # earlier without a clock of SURFACE_APPLY, so they are kept short: each equality is
-        # two compares, made as the signs of subtractions from registers (14-bit carry
-        # chains, where a 30-bit == was a tree of LUTs), and accept only chooses between
-        # them, in the last LUT; start >= 2^N_WIDTH (no sample reaches it) goes in beside the
-        # compare of the low N_WIDTH bits.
-        start_lo = start[:N_WIDTH]
-        ge_n1 = _le(start_lo, n1)  # n + 1 >= start
-        ge_n = _le(start_lo, n)  # n >= start
-        gt_n = ~_le(n, start_lo)  # n > start
-        known = s_pend & (start[N_WIDTH:] == 0)  # (at an accepted first sample: ~d.first)
-        known_a = known & ~d.first
-        m.d.sync += [
-            match.eq(Mux(accept, known_a & ge_n1 & ~ge_n, known & ge_n & ~gt_n)),
-            active.eq(Mux(accept, known_a & ge_n, known & gt_n)),
-        ]
+        # (`active`: k(n) >= 1 territory), for the sample n1 if one is accepted now, else n,
+        # once the frame's surface is known. Neither has state: `active` as a set-clear
+        # register set by an accepted `match` made a loop (active -> match -> its enables,
+        # the pipeline's worst path on two seeds of three, thirty-ninth session). Their compares
+        # of n with `start` are registered a clock before they are chosen by `accept`: the
+        # compares' carry chains and the choice in one clock (n1 -> a 14-bit chain -> two LUTs
+        # -> `match`) missed 200 MHz on every one of thirteen pipeline placements (fifty-first
+        # session). So stage A registers, from registers, the facts "n - 1 + i is at or
+        # past start, and the surface known" (`past`, i = 0..3), and stage B, a clock later,
+        # chooses among them by what the port did meanwhile (`a_step`: a sample of the frame
+        # accepted, n moved on by one) and makes the flags' two candidates: "n at or past
+        # start and n - 1 not" is "n is start". That clock is the third of SURFACE_APPLY; the
+        # two are the same as one compare once the surface is known two samples before n
+        # reaches start, which the register floor of `bin_offset` guarantees
+        # (`max_unsurfaced`). Each compare is the sign of a subtraction from registers (a
+        # 14-bit chain, where a 30-bit == was a tree of LUTs; with `start` whole, a 30-bit
+        # chain, and the equalities made in stage A, which ABC made two LUTs after the chain,
+        # stage A missed 200 MHz by 0.1-0.4 ns on three pipeline placements of three), and a
+        # first sample accepted now clears the facts as it clears `s_pend`, so that stage B
+        # reads only the step. Stage B's candidates are kept wires (`_cut`): left to ABC, it
+        # shared "accept and not first" across them, and `match` was three LUTs deep (four
+        # in the pipeline) where two suffice.
+        at_or_past = [~_le(n, start), _le(start, n), _le(start, n1), _le(start, n2)]
+        past = [Signal(name=f"sw_past{i}") for i in range(4)]
+        for fact, g in zip(past, at_or_past, strict=True):
+            # (a first sample's handshake as the flip-flops' reset, one LUT: in their data,
+            # ABC read it through the AND of s_pend and s_near, three LUTs deep)
+            with m.If(accept & d.first):
+                m.d.sync += fact.eq(0)
+            with m.Else():
+                m.d.sync += fact.eq(s_pend & s_near & g)
+        a_step = _reg(m, accept & ~d.first, 1, "sw_step")
+        # n' = n + a_step: "n' - 1 + i at or past start" is past[i + a_step], and "n' + i is
+        # start" is that for i + 1 and not for i (each chosen from the stage A registers on
+        # its own: as the AND of two choices, ABC read one through another candidate's LUT)
+        def is_start(i):
+            return Mux(a_step, past[i + 2] & ~past[i + 1], past[i + 1] & ~past[i])
+
+        # the flags with no sample accepted now (about n') and with one (about n' + 1, none
+        # if it is a frame's first)
+        eq_now = _cut(m, is_start(0), "sw_eq_now")
+        eq_next = _cut(m, ~d.first & is_start(1), "sw_eq_next")
+        past_now = _cut(m, Mux(a_step, past[1], past[0]), "sw_past_now")
+        past_next = _cut(m, ~d.first & Mux(a_step, past[2], past[1]), "sw_past_next")
+        m.d.sync += [match.eq(Mux(accept, eq_next, eq_now)),
+                     active.eq(Mux(accept, past_next, past_now))]
 
         # ---- stages 1, 2: the sample (twice) and the template `k` (registered: the template
         # decision is the longest path before the memories); stage 3: the delay line, beside

@@ -89,7 +89,7 @@ def test_verilator(tmp_path, case_name, traffic_name):
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
 def test_verilator_fork_slice(tmp_path, traffic_name):
     """The join with a register slice before its fork (the pipeline's), template switches
-    from its ``min_bin_offset`` on: the register's floor, 25 (two more than without it: the
+    from its ``min_bin_offset`` on: the register's floor, 26 (two more than without it: the
     slice's two entries; ``test_bound``)."""
     run_join(tmp_path, "edge16", traffic_name, fork_slice=True)
 
