@@ -96,8 +96,10 @@ class Link(wiring.Component):
     bank_id : Out(8)
         Commit count of the active bank.
     frame_idle : In(1)
-        No frame in the filter: a commit's copy starts after a clock on which it and
-        ``bank_busy`` are both high, so it must be low from the clock after an admission on.
+        No frame in the filter: a commit reads it from the second clock of ``bank_busy`` on
+        (the pipeline registers ``bank_busy`` before its hold, so a frame may still enter at
+        the first clock's edge), and its copy starts after a clock on which it is high; so it
+        must be low from the clock after an admission on.
     bank_busy : Out(1)
         Registered; from a commit's CRC match to the end of its copy: admit no new frame. The
         model switches banks the moment the command arrives; here frames already admitted
@@ -118,7 +120,7 @@ class Link(wiring.Component):
     consecutive clocks; an acknowledgement of ``n`` payload bytes then takes ``12 + n``
     clocks. ``BANK_WRITE`` of ``n`` words adds ``2 n + 3`` clocks (a payload byte per clock),
     ``BANK_CRC`` ``BANK_WORDS + 3`` (a shadow word per clock through the CRC), ``BANK_COMMIT``
-    ``BANK_WORDS + 6 + 3 K L`` once ``frame_idle`` is high (the copy writes a coefficient every
+    ``BANK_WORDS + 7 + 3 K L`` once ``frame_idle`` is high (the copy writes a coefficient every
     third clock: the shadow is read through the block's two registers). A command waits until
     the previous acknowledgement has left the transmitter (one buffer, which keeps the last
     acknowledgement for a retry); meanwhile the receiver's ring keeps taking bytes.
@@ -263,8 +265,8 @@ class Link(wiring.Component):
         # register (`fsm_state` -> the receiver's `base` and the plan's registers were the
         # device's worst paths, thirty-fifth session)
         fsm = OneHotFSM(m, ("BOOT", "IDLE", "FETCH", "CHECK", "CHECK2", "CHECK3", "PLAN", "DECIDE",
-                            "BANK_WRITE", "SCAN", "WAIT_IDLE", "COPY_READ", "COPY_WAIT",
-                            "COPY_WRITE", "DONE"), name="exec")
+                            "BANK_WRITE", "SCAN", "WAIT_HOLD", "WAIT_IDLE", "COPY_READ",
+                            "COPY_WAIT", "COPY_WRITE", "DONE"), name="exec")
 
         def answer(err, data_src, length):
             """Set the answer DONE loads (values or constants); the caller keeps a failure's
@@ -363,7 +365,9 @@ class Link(wiring.Component):
                     respond(ErrorCode.CRC_MISMATCH)
                 with m.Else():
                     m.d.sync += self.bank_busy.eq(1)
-                    fsm.next("WAIT_IDLE")
+                    fsm.next("WAIT_HOLD")
+        with fsm.state("WAIT_HOLD"):  # the pipeline's hold takes bank_busy a clock late
+            fsm.next("WAIT_IDLE")
         with fsm.state("WAIT_IDLE"):
             with m.If(self.frame_idle):
                 m.d.sync += [k.eq(0), j.eq(0)]

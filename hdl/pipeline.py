@@ -33,7 +33,7 @@ from model.link import FIFO_BYTES
 from model.matched_filter import K_MAX, L_MAX
 
 from . import matched_filter, stitch
-from ._primitives import RegisterSlice, _delay, _step, register_slice
+from ._primitives import RegisterSlice, _delay, _reg, _step, register_slice
 from .detect import FilterDetect
 from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, PACK_IN, FramePacketizer
 from .gate import Gate
@@ -165,7 +165,8 @@ class Pipeline(wiring.Component):
     acquiring : In(1)
         Triggers are ignored while low (the gate still runs its time counters).
     bank_busy : In(1)
-        While high, no new frame enters the filter.
+        While high, no new frame enters the filter, from the clock after it rises (a frame
+        let in at that clock's edge has made ``frame_idle`` low by the next).
     frame_idle : Out(1)
         No frame inside the filter, the detector or the packetizer's collection (meaningful
         while ``bank_busy`` is high; it rises once the frames inside have their results).
@@ -271,7 +272,13 @@ class Pipeline(wiring.Component):
         m.d.comb += [gs.w_data.eq(gate.o.payload), gs.w_en.eq(gate.o.valid),
                      gate.o.ready.eq(gs.w_rdy)]
         go = GATE_OUT(gs.r_data)
-        hold = go.first & self.bank_busy
+        # bank_busy is registered here first: it comes from the link, across the part (in the
+        # shell, from a register by the pins), and straight into the hold it was the one-lane
+        # pipeline's worst path on two placements of eight (bank_busy -> the slice's r_rdy ->
+        # its w_rdy, 5.99 ns, 3.22 of it the route out of bank_busy, fifty-first session's
+        # netlist). The link reads frame_idle from the second clock of bank_busy on
+        # (`hdl.device`), so a frame let in by the first is counted by then.
+        hold = go.first & _reg(m, self.bank_busy, 1, "busy_q")
         # A second slice after the hold, so that the filter's input valid is a register: with
         # the hold's AND (the side FIFO's w_rdy, the slice's r_rdy, bank_busy) in front of the
         # filter's acceptance it was the pipeline's worst path (beside_filter.w_rdy -> hold ->

@@ -14,6 +14,7 @@ import gc
 
 import numpy as np
 import pytest
+from amaranth.hdl import Signal
 
 from firmware_host.protocol import PacketParser
 from hdl.device import ACK_LATENCY, FRAME_BYTE, GROUPS, POWER_ON_COEF, Link, max_payload
@@ -368,7 +369,7 @@ class TestAmaranthSim:
         s = Script(seed=7)
         payload = {"BANK_WRITE": words(0, [1, 2, 3, 4]), "BANK_COMMIT": commit(2, 3, 0)}
         extra = {"BANK_WRITE": 2 * 4 + 3, "BANK_CRC": BANK_WORDS + 3,
-                 "BANK_COMMIT": BANK_WORDS + 6 + 3 * 2 * 3}
+                 "BANK_COMMIT": BANK_WORDS + 7 + 3 * 2 * 3}
         if cmd == "BANK_COMMIT":
             payload[cmd] = commit(2, 3, s.shadow_crc())
         s.send(P[cmd], payload.get(cmd, b""))
@@ -379,6 +380,22 @@ class TestAmaranthSim:
         tx = res.sinks["tx"]["clock"]
         assert tx[0] - res.sources["rx"]["clock"][-1] == ACK_LATENCY + extra.get(cmd, 0)
         assert np.all(np.diff(tx) == 1)
+
+    def test_commit_reads_frame_idle_after_the_holds_clock(self):
+        """A frame that passes the pipeline's hold at the first clock of ``bank_busy`` (which
+        the pipeline registers) makes ``frame_idle`` low only from the next: the copy waits
+        for it to leave (``WAIT_HOLD``; read at the first clock, the copy wrote under it)."""
+        s = Script(seed=6)
+        s.send(P.BANK_WRITE, words(0, [3, -4]))
+        s.send(P.BANK_COMMIT, commit(1, 2, s.shadow_crc()))
+        t = traffic(s.stream)
+        del t["static"]["frame_idle"]
+        dut = _AdmitsAtTheFirstBusyClock()
+        res = simulate(dut, **{**t, "watch": (*t["watch"], "overlap")},
+                       quiet_clocks=BANK_WORDS + 200)
+        check(res, s)
+        assert len(res.sinks["coef"]["addr"]) == 1 + 2  # the power-on write and the bank
+        assert res.watch["overlap"] == 0
 
     @pytest.mark.parametrize("idle", [0, 1])
     def test_commit_waits_for_frame_idle(self, idle):
@@ -395,6 +412,32 @@ class TestAmaranthSim:
             assert len(res.sinks["coef"]["addr"]) == 1  # the power-on write only
             assert bytes(res.sinks["tx"]["value"].astype(np.uint8)) == s.acks()[:13]
             assert (res.watch["bank_id"], res.watch["taps"]) == (0, 1)
+
+
+class _AdmitsAtTheFirstBusyClock(Link):
+    """Link beside a model of the pipeline's hold: the pipeline registers ``bank_busy`` before
+    its hold, so a frame may pass it at the first clock of ``bank_busy`` (this one always
+    does); ``frame_idle`` is low from the clock after that admission, for ``inside`` clocks.
+    ``overlap`` is set for good if a coefficient is written while the frame is inside."""
+
+    def __init__(self, inside: int = 16):
+        super().__init__()
+        self.inside = inside
+        self.overlap = Signal()
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        busy_q = Signal()
+        left = Signal(range(self.inside + 1))
+        m.d.sync += busy_q.eq(self.bank_busy)
+        with m.If(self.bank_busy & ~busy_q):  # the admission edge: inside from the next clock
+            m.d.sync += left.eq(self.inside)
+        with m.Elif(left != 0):
+            m.d.sync += left.eq(left - 1)
+        m.d.comb += self.frame_idle.eq(left == 0)
+        with m.If(self.coef.valid & (left != 0)):
+            m.d.sync += self.overlap.eq(1)
+        return m
 
 
 class TestVerilator:
