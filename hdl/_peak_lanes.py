@@ -289,21 +289,23 @@ def elaborate(top, platform):
                      d.count, 1))),
                  inb.tag.eq(Mux(d.first, tag_p1, tag))]
     # "n_next reaches need_at[c]" is registered a clock before it is read, for n_next and
-    # n_next + L (`nn_at`, `nn_at_l`: need_at[c] - L beside need_at[c]), and chosen by what
-    # the port did meanwhile (`nn_step`: a beat of the frame accepted, n_next moved on by
-    # L; `nn_first`: a frame's first, n_next is L, whose flags are static, `nn_first_at`).
-    # Compared in the clock of the accepted beat, the chain of n_next and need_at, placed
-    # by need_at's other readers, and the choice by the port's first missed 200 MHz on
-    # every one of the one-lane pipeline's placements (fifty-first session, thirteen
-    # placements; the chain's sign 1.9 ns of route from the flag, 6.14 ns in all).
-    need_at_l = [_reg(m, W2P + (2 - 2 * L - c), pos, f"need_at_l{c}", True)
-                 for c in range(L + 1)]
+    # n_next + L (`nn_at`, `nn_at_l`; n_next + L is a counter of its own, `n_next_l`), and
+    # chosen by what the port did meanwhile (`nn_step`: a beat of the frame accepted, n_next
+    # moved on by L; `nn_first`: a frame's first, n_next is L, whose flags are static,
+    # `nn_first_at`). Compared in the clock of the accepted beat, the chain of n_next and
+    # need_at, placed by need_at's other readers, and the choice by the port's first missed
+    # 200 MHz on every one of the one-lane pipeline's placements (fifty-first session,
+    # thirteen placements; the chain's sign 1.9 ns of route from the flag, 6.14 ns in all).
+    # (With need_at[c] - L as registers of their own instead of the counter, Yosys made
+    # need_at[0] from W + 2P two chains in series, the detector alone's worst path on nine
+    # placements of ten.)
+    n_next_l = Signal(_POS, init=L)  # n_next + L
     nn_first_at = [_reg(m, ~_sub_sign(m, Const(2 * L + c - 2, pos), W2P, f"nn_first_at{c}"), 1,
                         f"nn_first_at{c}", True) for c in range(L + 1)]
     nn_at = [_reg(m, ~_sub_sign(m, n_next, at, f"nn_at{c}"), 1, f"nn_at{c}")
              for c, at in enumerate(need_at)]
-    nn_at_l = [_reg(m, ~_sub_sign(m, n_next, at, f"nn_at_l{c}"), 1, f"nn_at_l{c}")
-               for c, at in enumerate(need_at_l)]
+    nn_at_l = [_reg(m, ~_sub_sign(m, n_next_l, at, f"nn_at_l{c}"), 1, f"nn_at_l{c}")
+               for c, at in enumerate(need_at)]
     nn_step = _reg(m, accept & ~d.first, 1, "nn_step")
     nn_first = _reg(m, accept & d.first, 1, "nn_first")
     # n_next >= need_at[c] now, one LUT of registers (a kept wire, so that ABC does not merge
@@ -317,7 +319,8 @@ def elaborate(top, platform):
             # partial, and the next beat after it is a first, which does not read n_next. An
             # add of the port's count after the first's mux, behind the filter's LUT-RAM
             # output, was the pipeline's worst path, 7.45 ns.)
-            m.d.sync += [n_next.eq(Mux(d.first, L, n_next + L)),
+            m.d.sync += [n_next.eq(Mux(d.first, L, n_next_l)),
+                         n_next_l.eq(Mux(d.first, 2 * L, n_next_l + L)),
                          next_needs.eq(Cat(Mux(d.first, ~first_short[c], reaches[c])
                                            for c in range(L + 1)))]
             with m.If(d.first):
