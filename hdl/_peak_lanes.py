@@ -309,9 +309,12 @@ def elaborate(top, platform):
     nn_step = _reg(m, accept & ~d.first, 1, "nn_step")
     nn_first = _reg(m, accept & d.first, 1, "nn_first")
     # n_next >= need_at[c] now, one LUT of registers (a kept wire, so that ABC does not merge
-    # it with the choice by the port's first behind it)
-    reaches = [_cut(m, Mux(nn_first, nn_first_at[c], Mux(nn_step, nn_at_l[c], nn_at[c])),
-                    f"nn_reaches{c}") for c in range(L + 1)]
+    # it with the choice by the port's first behind it; not for count 0, which no beat has:
+    # kept, its logic would stay in the netlist though nothing reads it, at one lane, where
+    # the count is 1, the detector's worst path on nine placements of ten)
+    reaches = [Mux(nn_first, nn_first_at[c], Mux(nn_step, nn_at_l[c], nn_at[c]))
+               for c in range(L + 1)]
+    reaches[1:] = [_cut(m, r, f"nn_reaches{c}") for c, r in enumerate(reaches[1:], 1)]
 
     def track_input():
         with m.If(accept):
