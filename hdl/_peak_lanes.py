@@ -302,10 +302,9 @@ def elaborate(top, platform):
     n_next_l = Signal(_POS, init=L)  # n_next + L
     nn_first_at = [_reg(m, ~_sub_sign(m, Const(2 * L + c - 2, pos), W2P, f"nn_first_at{c}"), 1,
                         f"nn_first_at{c}", True) for c in range(L + 1)]
-    nn_at = [_reg(m, ~_sub_sign(m, n_next, at, f"nn_at{c}"), 1, f"nn_at{c}")
-             for c, at in enumerate(need_at)]
-    nn_at_l = [_reg(m, ~_sub_sign(m, n_next_l, at, f"nn_at_l{c}"), 1, f"nn_at_l{c}")
-               for c, at in enumerate(need_at)]
+    nn_at, nn_at_l = ([_reg(m, ~_sub_sign(m, count, at, f"{name}{c}"), 1, f"{name}{c}")
+                       for c, at in enumerate(need_at)]
+                      for count, name in ((n_next, "nn_at"), (n_next_l, "nn_at_l")))
     nn_step = _reg(m, accept & ~d.first, 1, "nn_step")
     nn_first = _reg(m, accept & d.first, 1, "nn_first")
     # n_next >= need_at[c] now, one LUT of registers (a kept wire, so that ABC does not merge
