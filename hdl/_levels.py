@@ -26,7 +26,7 @@ from collections import Counter
 from pathlib import Path
 
 __all__ = ["FF_INPUTS", "FREE_INPUTS", "SEQUENTIAL", "cell_register", "deepest", "deepest_path",
-           "logic_levels", "top_module"]
+           "drivers", "logic_levels", "top_module"]
 
 #: Cells whose outputs start a path (registers, memories, DSP blocks with their registers).
 SEQUENTIAL = frozenset({"TRELLIS_FF", "DP16KD", "MULT18X18D", "TRELLIS_DPR16X4", "ALU54B"})
@@ -89,6 +89,18 @@ def _public(net: str) -> bool:
     return not any(mark in last for mark in _MADE)
 
 
+def drivers(top: dict) -> dict[int, str]:
+    """The cell driving each bit of a top module (:func:`top_module`): ``{bit: cell name}``."""
+    found = {}
+    for name, c in top["cells"].items():
+        for port, way in c["port_directions"].items():
+            if way == "output":
+                for bit in c["connections"][port]:
+                    if isinstance(bit, int):
+                        found[bit] = name
+    return found
+
+
 class _Cones:
     """The netlist's cells as a graph of bits, with the logic depth of each bit (memoized)
     and the input bit that set it, so that a register's deepest path can be walked back."""
@@ -96,13 +108,7 @@ class _Cones:
     def __init__(self, d: dict):
         top = top_module(d)
         self.cells, nets = top["cells"], top["netnames"]
-        self.driver = {}
-        for name, c in self.cells.items():
-            for port, way in c["port_directions"].items():
-                if way == "output":
-                    for bit in c["connections"][port]:
-                        if isinstance(bit, int):
-                            self.driver[bit] = name
+        self.driver = drivers(top)
         self.names: dict[int, list[str]] = {}
         for net, v in nets.items():
             if not _public(net) or _library(v.get("attributes", {})):

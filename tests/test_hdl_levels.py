@@ -3,46 +3,10 @@
 import json
 
 import pytest
+from netlists import Netlist as _Net
 
 from firmware_host.cli import main
 from hdl._levels import cell_register, deepest_path, depth_by_module, logic_levels, top_module
-
-
-class _Net:
-    """A hand-made flattened netlist in Yosys's JSON form: cells wired by bit numbers."""
-
-    def __init__(self):
-        self.cells, self.nets, self.bit = {}, {}, 1
-
-    def wire(self, name=None, src="top.v:1"):
-        self.bit += 1
-        if name:
-            self.nets[name] = {"bits": [self.bit], "attributes": {"src": src}}
-        return self.bit
-
-    def cell(self, name, kind, ins: dict, outs: dict):
-        self.cells[name] = {
-            "type": kind,
-            "port_directions": {**{p: "input" for p in ins}, **{p: "output" for p in outs}},
-            "connections": {p: [b] for p, b in {**ins, **outs}.items()}}
-
-    def ff(self, name, d, **pins):
-        """A flip-flop, its cell named as Yosys names one; ``pins`` its other inputs (``CE``,
-        ``LSR``)."""
-        q = self.wire(name)
-        self.cell(f"{name}_TRELLIS_FF_Q", "TRELLIS_FF", {"DI": d, "CLK": "0", **pins}, {"Q": q})
-        return q
-
-    def lut(self, name, *ins):
-        z = self.wire()
-        self.cell(name, "LUT4", dict(zip("ABCD", ins, strict=False)), {"Z": z})
-        return z
-
-    def json(self):
-        return {"modules": {
-            "LUT4": {"attributes": {"blackbox": "1"}, "cells": {}, "netnames": {}},
-            "top": {"attributes": {"top": "00000000000000000000000000000001"},
-                    "cells": self.cells, "netnames": self.nets}}}
 
 
 def test_luts_and_chains_counted_carry_hops_free():
