@@ -19,7 +19,7 @@ consumer never sees a partial frame, however long it holds ``ready`` low.
 
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Module, Mux, Signal
+from amaranth.hdl import Cat, Module, Mux, Signal, signed
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -172,29 +172,47 @@ class Gate(wiring.Component):
             return _reg(m, value, shape, f"{name}_q", True)
 
         gate_len, gate_delay, fine_div = cfg.gate_len, cfg.gate_delay, cfg.fine_div
-        # gate_len = 0 counts as 1, which matters to bit 0 of `length` alone: `gate_len <= 1`
+
+        def less(value, k, name):
+            """`value - k` on one carry chain, two bits wider than `value`: its low bits (the
+            difference modulo 2^len(value)) and its sign (value < k). Each flag made of the
+            registers is a chain's sign, or two signs and a LUT: as `==` and `<=` of the
+            16-bit values, ABC made trees three LUTs deep and shared them across the flags,
+            and the gate's `div_le1_q` missed 200 MHz on three of eight placements of the
+            pipeline (fifty-third session)."""
+            d = Signal(signed(len(value) + 2), name=f"{name}_sub")
+            m.d.comb += d.eq(value - k)
+            return d[:len(value)], d[-1]
+
+        # gate_len = 0 counts as 1, which matters to bit 0 of `length` alone: `gate_len < 2`
         # (bits 1 and up zero) stands for it there. `len_m1` and `len_m2` are not read for a
         # frame of one sample (`len1`: with no delay the gate never gets busy; after a delay
         # `left1` ends the frame at its kept sample, and `left_m1` is loaded again before it
         # is read), so they are plain subtractions. As `gate_len == 0` (taken by synthesis from
         # a chain's carry) and two LUTs behind it, the choice held the gate alone at 184.7 MHz
         # in context (seed 2, thirty-sixth session).
-        le1 = gate_len[1:] == 0  # gate_len <= 1
-        low = gate_len[0] | le1  # bit 0 of max(gate_len, 1)
-        length = q(Cat(low, gate_len[1:]), gate_len.shape(), "length")
-        len1 = q(le1, 1, "len1")  # length == 1
-        len2 = q(gate_len == 2, 1, "len2")  # length == 2
-        no_delay = q(gate_delay == 0, 1, "no_delay")
-        delay1 = q(gate_delay == 1, 1, "delay1")
-        delay2 = q(gate_delay == 2, 1, "delay2")
-        delay_m2 = q(gate_delay - 2, gate_delay.shape(), "delay_m2")
+        len_less1, _ = less(gate_len, 1, "len_less1")
+        len_less2, len_lt2 = less(gate_len, 2, "len_less2")
+        _, len_lt3 = less(gate_len, 3, "len_less3")
+        length = q(Cat(gate_len[0] | len_lt2, gate_len[1:]), gate_len.shape(), "length")
+        len1 = q(len_lt2, 1, "len1")  # length == 1
+        len2 = q(len_lt3 & ~len_lt2, 1, "len2")  # length == 2
+        _, delay_lt1 = less(gate_delay, 1, "delay_less1")
+        delay_less2, delay_lt2 = less(gate_delay, 2, "delay_less2")
+        _, delay_lt3 = less(gate_delay, 3, "delay_less3")
+        no_delay = q(delay_lt1, 1, "no_delay")
+        delay1 = q(delay_lt2 & ~delay_lt1, 1, "delay1")
+        delay2 = q(delay_lt3 & ~delay_lt2, 1, "delay2")
+        delay_m2 = q(delay_less2, gate_delay.shape(), "delay_m2")
         # the counters' loads while idle: length less 2 (no delay: the trigger's sample is
         # kept) or less 1, chosen at the load
-        len_m1 = q(gate_len - 1, gate_len.shape(), "len_m1")
-        len_m2 = q(gate_len - 2, gate_len.shape(), "len_m2")
-        div_le1 = q(fine_div <= 1, 1, "div_le1")
-        div2 = q(fine_div == 2, 1, "div2")
-        div_m2 = q(fine_div - 2, fine_div.shape(), "div_m2")
+        len_m1 = q(len_less1, gate_len.shape(), "len_m1")
+        len_m2 = q(len_less2, gate_len.shape(), "len_m2")
+        div_less2, div_lt2 = less(fine_div, 2, "div_less2")
+        _, div_lt3 = less(fine_div, 3, "div_less3")
+        div_le1 = q(div_lt2, 1, "div_le1")
+        div2 = q(div_lt3 & ~div_lt2, 1, "div2")
+        div_m2 = q(div_less2, fine_div.shape(), "div_m2")
         frame_type = q(cfg.frame_type, cfg.frame_type.shape(), "frame_type")
         bank_id = q(self.bank_id, self.bank_id.shape(), "bank_id")
 

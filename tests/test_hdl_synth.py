@@ -28,6 +28,9 @@ class TestSynth:
         assert abs(r["samples_per_s"] - r["fmax_mhz"] * 1e6) < 1e5  # one lane
         assert (tmp_path / "report.json").exists() and (tmp_path / "albcap_stitch.v").exists()
         assert r["router"] == "router1" and r["placer"] == "heap"
+        # the netlist placed is Yosys's with its small cones one LUT deep, proven equal to it
+        assert r["remap"]["max_inputs"] == 6 and r["remap"]["proven_equal"]
+        assert (tmp_path / "albcap_stitch_yosys.json").exists()
         assert "Max frequency" in (tmp_path / "nextpnr.log").read_text()
         # the path that holds fmax: its delay is the clock period fmax gives
         w = r["worst_path"]
@@ -55,7 +58,7 @@ class TestSynth:
         # heap run in the test above)
         assert main(["hdl", "synth", "--json", "--component", "albcap_stitch",
                      "--router", "router2", "--placer", "static", "--seed", "7",
-                     "--out", str(out)]) == 0
+                     "--remap", "0", "--out", str(out)]) == 0
         res = json.loads(capsys.readouterr().out)
         assert json.loads(out.read_text())["figures"]["albcap_stitch"]["fmax_mhz"] == \
             res["components"]["albcap_stitch"]["fmax_mhz"]
@@ -64,6 +67,7 @@ class TestSynth:
         assert res["components"]["albcap_stitch"]["router"] == "router2"
         assert res["components"]["albcap_stitch"]["placer"] == "static"
         assert res["components"]["albcap_stitch"]["seed"] == 7
+        assert "remap" not in res["components"]["albcap_stitch"]  # Yosys's netlist placed
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
             res["components"]["albcap_stitch"])
 
