@@ -68,6 +68,26 @@ class WindowStats(NamedTuple):
     sbound: Value | None = None
 
 
+def _running_sum(m, t, ahead, term, shape, name):
+    """A frame's running sum over its valid beats, ``sum = (t.first ? 0 : sum) + term``
+    at each beat ``t`` (``valid``, ``first``), with the restart off its path: ``term`` is
+    added to a register of its own, ``{name}_from``, which the beat a clock before ``t``
+    (``ahead``, the delay line's previous tap) clears when it is a frame's first, through its
+    flip-flops' reset (design rule 10). Each register is then one carry chain of registers:
+    with the choice of 0 in front of the add, the detector's ``mu_sum`` was a LUT and a chain
+    deep and missed 200 MHz on five of eight placements of the one-lane pipeline
+    (fifty-second session) and on all three of the fifty-third's first."""
+    total = Signal(shape, name=name)
+    base = Signal(shape, name=f"{name}_from")  # what the beat at `t` adds to
+    with m.If(ahead.valid & ahead.first):
+        m.d.sync += base.eq(0)
+    with m.Elif(t.valid):
+        m.d.sync += base.eq(base + term)
+    with m.If(t.valid):
+        m.d.sync += total.eq(base + term)
+    return total
+
+
 def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_tag, st_valid,
                       e_push, windows, window_shift, q_pop, stats_ok) -> WindowStats:
     """Build the window statistics into ``m``.
@@ -156,11 +176,11 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     # the baseline tree, its running sum, then mu
     mu_tree = _sum_tree(m, s1_mu, "mu_tree")
     sd = _delay(m, s1, depth + 3, "side")  # sd[i]: the side band i clocks after S1
-    mu_sum = Signal(signed(OUT_WIDTH + _P_MAX_LOG2))
     mu = Signal(_Y)
     t = sd[depth]
-    with m.If(t.valid):
-        m.d.sync += mu_sum.eq(Mux(t.first, 0, mu_sum) + mu_tree)
+    # (s1 loads s0 at every clock: the side band a clock before sd[0] is s0's)
+    mu_sum = _running_sum(m, t, sd[depth - 1] if depth else s0, mu_tree,
+                          signed(OUT_WIDTH + _P_MAX_LOG2), "mu_sum")
     with m.If(sd[depth + 1].valid & sd[depth + 1].close_mu):
         m.d.sync += mu.eq(window_shift(mu_sum))
     # |y - mu| on the noise lanes, the clock after mu is registered for the closing beat
@@ -176,9 +196,8 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     dev_tree = _sum_tree(m, devs, "dev_tree")
     sd2 = _delay(m, sd[depth + 3], depth + 1, "side_dev")
     t = sd2[depth + 1]  # the side band of the beat at the dev tree's root
-    dev_sum = Signal(unsigned(OUT_WIDTH + 1 + _P_MAX_LOG2))
-    with m.If(t.valid):
-        m.d.sync += dev_sum.eq(Mux(t.first, 0, dev_sum) + dev_tree)
+    dev_sum = _running_sum(m, t, sd2[depth], dev_tree, unsigned(OUT_WIDTH + 1 + _P_MAX_LOG2),
+                           "dev_sum")
     t_dev = t
     dev_closed = _reg(m, t.valid & t.close_dev, 1, "dev_closed")
     dev_tag = _reg(m, t.tag, TAG_WIDTH, "dev_tag")
