@@ -592,7 +592,8 @@ class MatchedFilter(wiring.Component):
     the next clock on (``bin_len`` at the first bin that starts on a sample accepted a clock
     after that, as bins are counted down from it; ``out_shift`` at the shift stage a clock
     after it is written, through a register of the filter's own, its saturation bounds a
-    clock after that). Coefficients are read two clocks after a sample is
+    clock after that; ``bin_offset`` at a surface message taken a clock after it is
+    written, also through a register of its own). Coefficients are read two clocks after a sample is
     accepted, ``taps`` one clock after: write the bank and change ``taps`` between frames, with
     the pipeline's first stages empty. Frames longer than ``2^N_WIDTH - 1`` samples wrap the
     sample counter.
@@ -723,9 +724,17 @@ class MatchedFilter(wiring.Component):
         # was the one-lane pipeline's worst path on two placements of three: the port's
         # handshake -> three LUTs -> its enable, 5.69 and 5.79 ns.)
         m.d.comb += self.surface.ready.eq(surface_ready(self, tag))
-        start_sum = self.surface.payload.n + cfg.bin_offset
+        # `bin_offset - 2^N_WIDTH` in a register of the filter's own, a clock after the port
+        # (as bin_len's loads above): s + bin_offset < 2^N_WIDTH is then the sign of one add,
+        # whose low bits are `start`. (`s_near` as the high bits of `s + bin_offset` tested
+        # for zero, a chain and a LUT, missed 200 MHz on every seed of the fifty-third
+        # session's first pipeline run.)
+        near_base = Signal(signed(len(cfg.bin_offset) + 2), name="near_base")
+        m.d.sync += near_base.eq(cfg.bin_offset - (1 << N_WIDTH))
+        start_sum = Signal(signed(len(near_base) + 1), name="start_sum")
+        m.d.comb += start_sum.eq(self.surface.payload.n + near_base)
         with m.If(self.surface.valid & ~s_pend):
-            m.d.sync += [start.eq(start_sum[:N_WIDTH]), s_near.eq(start_sum[N_WIDTH:] == 0)]
+            m.d.sync += [start.eq(start_sum[:N_WIDTH]), s_near.eq(start_sum[-1])]
         with m.If(self.surface.valid & (self.surface.payload.tag == tag) & ~(accept & d.first)):
             m.d.sync += s_pend.eq(1)
 
