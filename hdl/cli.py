@@ -217,8 +217,8 @@ def register(subparsers) -> None:
     from .synth import REMAP_INPUTS
 
     remap_help = ("between Yosys and nextpnr, make one LUT of every flip-flop input that is "
-                  "two or more LUTs deep and reads at most this many sources (hdl/_remap.py; "
-                  "0: Yosys's netlist as it is)")
+                  "two or more LUTs deep and reads at most this many sources, 1 to 6 "
+                  "(hdl/_remap.py; 0: Yosys's netlist as it is)")
     syn.add_argument("--remap", type=_remap_inputs, default=REMAP_INPUTS, metavar="K",
                      help=remap_help + "; the result is proven equal to Yosys's netlist")
     syn.add_argument("--out", type=Path, default=None,

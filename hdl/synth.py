@@ -10,8 +10,8 @@ buffers), so a component's many ports do not need package pins and the figure is
 own; but nextpnr then routes the clock through the fabric, which a design of tens of thousands
 of flip-flops does not survive, so ``context="in"`` (``--context in``) places it inside a
 :class:`PortShell` of registers, in context, its clock on a global network. Between Yosys and
-nextpnr, :mod:`hdl._remap` makes every flip-flop input of at most six sources one LUT deep and
-proves the result equal to Yosys's netlist (``remap``; ``--remap 0`` places Yosys's as it is).
+nextpnr, with ``remap`` (``--remap 6``), :mod:`hdl._remap` makes every flip-flop input of at
+most six sources one LUT deep and proves the result equal to Yosys's netlist.
 
 The first call of each tool compiles its WebAssembly (about two minutes for Yosys here); later
 calls reuse the cache.
@@ -281,9 +281,11 @@ def synth_components() -> dict:
 DIAGNOSTICS = {"albcap_ceiling": Ceiling}
 
 
-#: Sources of the largest cone :mod:`hdl._remap` makes one LUT (a LUT6), the default of every
-#: figure since the fifty-third session (0: Yosys's netlist as it is).
-REMAP_INPUTS = MAX_INPUTS
+#: ``remap``'s default: 0, Yosys's netlist placed as it is. The pass (:mod:`hdl._remap`, up to
+#: ``MAX_INPUTS`` sources) halves the one-lane pipeline's registers two or more LUTs deep but
+#: did not raise its clock over the seeds measured (``docs/fpga.md``, "Small cones one LUT
+#: deep"), so it is asked for (``--remap 6``), not the default.
+REMAP_INPUTS = 0
 
 ROUTERS = ("router1", "router2")
 #: nextpnr's placers: ``heap`` (its default, analytic then simulated annealing) and ``static``
@@ -345,9 +347,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     remap : int, 0 to 6
         Between Yosys and nextpnr, rebuild as one LUT every flip-flop input whose logic is two
         or more LUTs deep and reads at most this many sources, then prove the netlist equal
-        to Yosys's (:mod:`hdl._remap`); 0 places Yosys's netlist as it is (every figure
-        before the fifty-third session). Recorded in the result (``remap``: the count and
-        what it changed) when not 0.
+        to Yosys's (:mod:`hdl._remap`); 0 (the default, :data:`REMAP_INPUTS`, and every
+        recorded figure) places Yosys's netlist as it is. Recorded in the result (``remap``:
+        the count and what it changed) when not 0.
 
     Returns
     -------
@@ -487,8 +489,8 @@ def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: s
         text = verilog.convert(component, name=name, emit_src=False, platform=ECP5_SYNTH)
     (wd / f"{name}.v").write_text(text)
     if not (isinstance(remap, int) and not isinstance(remap, bool)
-            and 0 <= remap <= REMAP_INPUTS):
-        raise ValueError(f"remap must be an integer in 0..{REMAP_INPUTS}, not {remap!r}")
+            and 0 <= remap <= MAX_INPUTS):
+        raise ValueError(f"remap must be an integer in 0..{MAX_INPUTS}, not {remap!r}")
     made = f"{name}_yosys.json" if remap else f"{name}.json"
     _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
           f"-json {made}"], wd, f"yosys on {name}")
