@@ -257,7 +257,7 @@ def remap_small_cones(netlist: dict, max_inputs: int = MAX_INPUTS,
                 table = [cones.value(bit, {s: (v >> i) & 1 for i, s in enumerate(sources)}, {})
                          for v in range(1 << len(sources))]
                 label = names.get(bit, f"bit{bit}")
-                if f"{label}$remap" in top["netnames"]:  # (two bits of one name never meet)
+                if f"{label}$remap" in top["netnames"]:  # the name is taken: keep cells unique
                     label = f"{label}${bit}"
                 done[bit] = build.lut(f"{label}$remap", sources, table)
                 top["netnames"][f"{label}$remap"] = {"hide_name": 0, "bits": [done[bit]],
