@@ -14,15 +14,15 @@ from contextlib import contextmanager
 from functools import reduce
 from operator import or_
 
-from amaranth.hdl import Const, Module, Mux, Signal, signed, unsigned
+from amaranth.hdl import Const, Module, Mux, Signal, Value, signed, unsigned
 from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from ._bram import DEEPEST, BlockRAM
 
 __all__ = ["RAM_DELAY_MIN", "OneHotFSM", "RegisterSlice", "_Store", "_delay", "_delay_to", "_le",
-           "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub_sign", "_sum_tree",
-           "_thermometer_next", "register_slice"]
+           "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub", "_sub_sign",
+           "_sum_tree", "_thermometer_next", "register_slice"]
 
 
 #: Entries of the output buffer of a :class:`_Store` read free (``free_read``), counting those
@@ -61,16 +61,22 @@ def _room(count, cap, up, down):
             | ((count == cap) & down & ~up))
 
 
+def _sub(m, a, b, name):
+    """``a - b`` on a signal of its own, ``{name}_sub``, signed and two bits wider than the
+    wider operand (so any mix of signedness fits): one carry chain, whose sign is ``a < b``
+    (:func:`_sub_sign`) and whose low bits are the difference."""
+    d = Signal(signed(max(len(a), len(Value.cast(b))) + 2), name=f"{name}_sub")
+    m.d.comb += d.eq(a - b)
+    return d
+
+
 def _sub_sign(m, a, b, name):
     """``a < b`` as the sign of ``a - b``: synthesis keeps a subtraction on the carry chain,
     where it turned the compare into a chain of six LUTs (a worst path)."""
-    # The test of _le (a < b is ~_le(b, a)), but through a signal of its own, `{name}_sub`
-    # (signed, two bits wider than the wider operand, so any mix of signedness fits): the
+    # The test of _le (a < b is ~_le(b, a)), but through a signal of its own (_sub): the
     # named difference is what the netlist and the timing reports show. The peak detector's
     # logic was measured with it; _le in its place would change the generated Verilog.
-    d = Signal(signed(max(len(a), len(b)) + 2), name=f"{name}_sub")
-    m.d.comb += d.eq(a - b)
-    return d[-1]
+    return _sub(m, a, b, name)[-1]
 
 
 def _reg(m, value, shape, name, reset_less=False):

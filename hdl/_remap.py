@@ -307,12 +307,12 @@ def check_equivalent(before: Path, after: Path, work_dir: Path, yosys: str) -> N
     script = ("read_json equiv_pair.json; read_verilog -specify +/lattice/common_sim.vh; "
               "hierarchy -check; flatten -wb; equiv_make gold gate equiv; "
               "hierarchy -top equiv; equiv_simple -undef; equiv_status")
-    done = subprocess.run([yosys, "-q", "-p", script, "-l", "equiv.log"], cwd=work_dir,
+    log_path = Path(work_dir) / "equiv.log"
+    done = subprocess.run([yosys, "-q", "-p", script, "-l", log_path.name], cwd=work_dir,
                           capture_output=True, text=True)
-    log = (Path(work_dir) / "equiv.log").read_text() if (Path(work_dir) / "equiv.log").exists() \
-        else done.stdout + done.stderr
+    log = log_path.read_text() if log_path.exists() else done.stdout + done.stderr
     if done.returncode != 0 or "Equivalence successfully proven!" not in log:
         unproven = [line.strip() for line in log.splitlines() if "Unproven $equiv" in line]
         raise RuntimeError(f"the remapped netlist {after} is not proven equal to {before}: "
                            f"{len(unproven)} nets unproven, e.g. {unproven[:3]} "
-                           f"(Yosys exit {done.returncode}; {Path(work_dir) / 'equiv.log'})")
+                           f"(Yosys exit {done.returncode}; {log_path})")

@@ -19,14 +19,14 @@ consumer never sees a partial frame, however long it holds ``ready`` low.
 
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Module, Mux, Signal, signed
+from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
 from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 
-from ._primitives import _le, _reg, _step, _Store
+from ._primitives import _le, _reg, _step, _Store, _sub
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
 __all__ = ["DROP_BITS", "HEADER_LATENCY", "LATENCY", "Gate"]
@@ -174,14 +174,13 @@ class Gate(wiring.Component):
         gate_len, gate_delay, fine_div = cfg.gate_len, cfg.gate_delay, cfg.fine_div
 
         def less(value, k, name):
-            """`value - k` on one carry chain, two bits wider than `value`: its low bits (the
-            difference modulo 2^len(value)) and its sign (value < k). Each flag made of the
-            registers is a chain's sign, or two signs and a LUT: as `==` and `<=` of the
-            16-bit values, ABC made trees three LUTs deep and shared them across the flags,
-            and the gate's `div_le1_q` missed 200 MHz on three of eight placements of the
-            pipeline (fifty-third session)."""
-            d = Signal(signed(len(value) + 2), name=f"{name}_sub")
-            m.d.comb += d.eq(value - k)
+            """`value - k` on one carry chain (`_sub`): its low bits (the difference modulo
+            2^len(value)) and its sign (value < k). Each flag made of the registers is a
+            chain's sign, or two signs and a LUT: as `==` and `<=` of the 16-bit values, ABC
+            made trees three LUTs deep and shared them across the flags, and the gate's
+            `div_le1_q` missed 200 MHz on three of eight placements of the pipeline
+            (fifty-third session)."""
+            d = _sub(m, value, k, name)
             return d[:len(value)], d[-1]
 
         # gate_len = 0 counts as 1, which matters to bit 0 of `length` alone: `gate_len < 2`
