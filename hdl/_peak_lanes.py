@@ -493,7 +493,8 @@ def elaborate(top, platform):
         cand_at=cand_at, ms_gt=ms_gt, ms_lane=ms_lane, stats=stats)
 
     # ---- frame end: statistics at the last beat's go, records to the divider ----
-    fin_mu, fin_noise, fin_thr = Signal(_Y), Signal(NOISE_WIDTH), Signal(THR_WIDTH)
+    fin_mu, fin_noise, fin_thr = (Signal(_Y, name="fin_mu"), Signal(NOISE_WIDTH, name="fin_noise"),
+                                  Signal(THR_WIDTH, name="fin_thr"))
     fins = [Signal(divider_layout(k_shape), name="fin_s"),
             Signal(divider_layout(k_shape), name="fin_b")]
     with m.If(top.o.valid & top.o.ready):
@@ -503,8 +504,13 @@ def elaborate(top, platform):
     with m.If(go & d1.last):
         # a long frame's last beat needed its threshold, so the statistics are this frame's;
         # the next frame's last beat waits for this result (busy), so they stay until taken
+        # (mu and noise are zero for a frame that did not need them: an AND, not a choice of
+        # zero, which Yosys makes the flip-flops' reset, a LUT of the load's enable, so that
+        # D1's `last` -> the enable -> the reset was two LUTs into 48 flip-flops, the one-lane
+        # pipeline's worst path on seed 3, 6.08 ns, 4.66 of it routing, fifty-fourth session)
         m.d.sync += [busy.eq(1),
-                     fin_mu.eq(Mux(d1_needs, fmu, 0)), fin_noise.eq(Mux(d1_needs, fnoise, 0)),
+                     fin_mu.eq(fmu & d1_needs.replicate(len(fmu))),
+                     fin_noise.eq(fnoise & d1_needs.replicate(len(fnoise))),
                      fin_thr.eq(Mux(d1_needs, fthr, cfg.min_thr))]
     q_done = Signal(name="div_q_done")
     divide(m, fins, load_divider(m, fins, (s_fin, b_fin), end_long, end_valid, fin_mu), q_done)

@@ -200,6 +200,8 @@ class Gate(wiring.Component):
         delay_less2, delay_lt2 = less(gate_delay, 2, "delay_less2")
         _, delay_lt3 = less(gate_delay, 3, "delay_less3")
         no_delay = q(delay_lt1, 1, "no_delay")
+        single0 = q(delay_lt1 & len_lt2, 1, "single0")  # no delay and length 1
+        single1 = q(delay_lt2 & ~delay_lt1 & len_lt2, 1, "single1")  # delay 1 and length 1
         delay1 = q(delay_lt2 & ~delay_lt1, 1, "delay1")
         delay2 = q(delay_lt3 & ~delay_lt2, 1, "delay2")
         delay_m2 = q(delay_less2, gate_delay.shape(), "delay_m2")
@@ -334,6 +336,7 @@ class Gate(wiring.Component):
         left1 = Signal()  # those samples are 1
         fresh = Signal()  # no sample of the open frame kept yet (left == the frame's length)
         fresh0 = Signal()  # fresh & wait0: the next step is the open frame's first sample
+        fresh0_1 = Signal()  # fresh0 & left1: ... and its last
         keep = Signal()  # the open frame was admitted to the FIFOs
         start = p.trigger & ~busy
         cur_wait0 = Mux(busy, wait0, no_delay)
@@ -418,7 +421,12 @@ class Gate(wiring.Component):
             one_q.eq(~_by_pending(wr_q, wr, [v[-1] for v in lfree[1:]])),
             # = step & first, with `fresh0` rather than three flags and `gate_delay` == 0
             first_q.eq(step & Mux(busy, fresh0, p.trigger & no_delay)),
-            single_q.eq(step & first & last), wr_q.eq(wr), wr_q2.eq(wr_q), hwr_q.eq(hwr),
+            # = step & first & last, with `fresh0_1` and `single0`: from the flags
+            # (`first` and `last` from `busy`, `wait0`, `fresh`, `left1`, `no_delay`, `len1`
+            # and the trigger) it was three LUTs, and missed 200 MHz on two seeds of three
+            # (fifty-fourth session); five inputs now
+            single_q.eq(step & Mux(busy, fresh0_1, p.trigger & single0)),
+            wr_q.eq(wr), wr_q2.eq(wr_q), hwr_q.eq(hwr),
         ]
         keep_now = Mux(first_q, admit, keep)  # for the samples after the first
         with m.If(first_q):
@@ -440,6 +448,7 @@ class Gate(wiring.Component):
                 wait1.eq(delay2),
                 wait0.eq(no_delay | delay1),
                 fresh0.eq(delay1),
+                fresh0_1.eq(single1),  # (with a delay of 1, left1 loads len1)
                 fresh.eq(~no_delay),
                 left_m1.eq(Mux(no_delay, len_m2, len_m1)),
                 left1.eq(Mux(no_delay, len2, len1)),
@@ -449,10 +458,10 @@ class Gate(wiring.Component):
             # chain from the register, not a 16-bit compare tree (the gate's worst path,
             # 5.2 ns, once the frame store's block RAM read was registered)
             m.d.sync += [wait_m1.eq(wait_m1 - 1), wait1.eq(~wait1 & ~_le(2, wait_m1)),
-                         wait0.eq(wait1), fresh0.eq(wait1)]
+                         wait0.eq(wait1), fresh0.eq(wait1), fresh0_1.eq(wait1 & left1)]
         with m.Elif(step):  # a sample kept
             m.d.sync += [left_m1.eq(left_m1 - 1), left1.eq(left_dec2[-1]), fresh.eq(0),
-                         fresh0.eq(0), wait0.eq(1)]
+                         fresh0.eq(0), fresh0_1.eq(0), wait0.eq(1)]
         with m.If(step):
             with m.If(busy):
                 ends = wait0 & left1
