@@ -10,8 +10,9 @@ buffers), so a component's many ports do not need package pins and the figure is
 own; but nextpnr then routes the clock through the fabric, which a design of tens of thousands
 of flip-flops does not survive, so ``context="in"`` (``--context in``) places it inside a
 :class:`PortShell` of registers, in context, its clock on a global network. Between Yosys and
-nextpnr, with ``remap`` (``--remap 6``), :mod:`hdl._remap` makes every flip-flop input of at
-most six sources one LUT deep and proves the result equal to Yosys's netlist.
+nextpnr, :mod:`hdl._remap` makes every flip-flop input of at most ``remap`` sources
+(``--remap K``; 4 by default, :data:`REMAP_INPUTS`) one LUT deep and proves the result equal
+to Yosys's netlist.
 
 The first call of each tool compiles its WebAssembly (about two minutes for Yosys here); later
 calls reuse the cache.
@@ -281,11 +282,14 @@ def synth_components() -> dict:
 DIAGNOSTICS = {"albcap_ceiling": Ceiling}
 
 
-#: ``remap``'s default: 0, Yosys's netlist placed as it is. The pass (:mod:`hdl._remap`, up to
-#: ``MAX_INPUTS`` sources) halves the one-lane pipeline's registers two or more LUTs deep but
-#: did not raise its clock over the seeds measured (``docs/fpga.md``, "Small cones one LUT
-#: deep"), so it is asked for (``--remap 6``), not the default.
-REMAP_INPUTS = 0
+#: ``remap``'s default: 4, the cones of at most four sources, each one ``LUT4``. Up to six
+#: (:data:`hdl._remap.MAX_INPUTS`, a LUT5 or LUT6 of ``LUT4`` s and the slice's muxes) halves
+#: the one-lane pipeline's registers two or more LUTs deep but did not raise its clock: the
+#: registers made a LUT6 missed more often than a ``LUT4``'s. At four, over five seeds of one
+#: Yosys run (fifty-fourth session), the lowest rose from 162.4 to 171.0 MHz and the mean from
+#: 175.1 to 177.9, and the median of the endpoints missing 200 MHz fell from 60 to 36
+#: (``docs/fpga.md``, "Small cones one LUT deep"). 0 places Yosys's netlist as it is.
+REMAP_INPUTS = 4
 
 ROUTERS = ("router1", "router2")
 #: nextpnr's placers: ``heap`` (its default, analytic then simulated annealing) and ``static``
@@ -347,9 +351,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     remap : int, 0 to 6
         Between Yosys and nextpnr, rebuild as one LUT every flip-flop input whose logic is two
         or more LUTs deep and reads at most this many sources, then prove the netlist equal
-        to Yosys's (:mod:`hdl._remap`); 0 (the default, :data:`REMAP_INPUTS`, and every
-        recorded figure) places Yosys's netlist as it is. Recorded in the result (``remap``:
-        the count and what it changed) when not 0.
+        to Yosys's (:mod:`hdl._remap`); 0 places Yosys's netlist as it is (every figure
+        recorded before the fifty-fourth session). The default is :data:`REMAP_INPUTS` (4).
+        Recorded in the result (``remap``: the count and what it changed) when not 0.
 
     Returns
     -------

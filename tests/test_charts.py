@@ -63,7 +63,7 @@ FPGA = {"format": "albcap-fpga-1", "device": {"part": "LFE5U-85F"}, "figures": {
         "dsps": 134, "brams": 0, "lanes": 11, "samples_per_s": 1071400000,
         "params": {"window_reg": 1, "taps_max": 12, "lanes": 11, "fork_slice": 2},
         "placer": "static", "router": "router1", "seed": 3, "context": "in",
-        "static": "registers",
+        "static": "registers", "remap": {"max_inputs": 4, "cones": 9, "proven_equal": True},
         "worst_path": {"ns": 10.27, "routing_ns": 9.03, "from": "a.ready", "to": "b.skid",
                        "logic_steps": 3}},
     "albcap_peak_detect[lanes=8]": {
@@ -79,9 +79,10 @@ def test_the_fpga_table_names_each_build_and_how_it_was_placed():
     assert len(rows) == 4 and rows[0].startswith("| build | context | registers | seed")
     # lanes x taps first, then the keywords in a fixed order; the path with its routing
     assert rows[2] == ("| filter_detect 11 x 12, fork_slice 2, window_reg | in | registers | 3 "
-                       "| static, router1 | 97.4 | 1071 | 33306 | 26437 | 134 | 0 "
+                       "| static, router1, remap 4 | 97.4 | 1071 | 33306 | 26437 | 134 | 0 "
                        "| `a.ready` -> `b.skid` (10.27, 9.03) |")
-    # a figure older than the seed, placer and path fields: defaults said, the rest "-"
+    # a figure older than the seed, placer and path fields: defaults said, the rest "-" (and
+    # no remap: Yosys's netlist as it was)
     assert rows[3] == ("| peak_detect 8 lanes | out | - | - | heap, router1 | 96.5 | 772 "
                        "| 10773 | 8004 | 2 | 0 | - |")
 
