@@ -355,13 +355,15 @@ class Pipeline(wiring.Component):
         # The header hand-over goes at a register, `h_go`: "the packetizer and `ready_h` were
         # both ready at the last clock, and no header went then". Each of the two falls only
         # at a take (the packetizer's `header.ready` at its header take, `ready_h` when the
-        # last waiting frame's header goes), so `h_go` implies both at this clock and the
-        # is exact. A header goes a clock later than it could, at most a clock a frame and
+        # last waiting frame's header goes), so `h_go` implies both at this clock, and the
+        # hand-over is exact. A header goes a clock later than it could, at most a clock a frame and
         # only while the packetizer waits for it (its frame's samples are then still in the
         # filter, LATENCY clocks long). As their AND, the gate's header-store read
         # (`r.ready` -> its read pointer's enable) was a LUT5 behind `ready_h`, the one-lane
         # pipeline's worst path on every seed (5.80 ns, 4.57 of it routing, fifty-third
-        # session); from one register it is one LUT4.
+        # session); from one register it is a cone of four sources, one LUT4 in the netlist
+        # placed (`hdl._remap`: ABC alone built it three LUT4s deep, sharing the store's block
+        # RAM enables).
         h_go = Signal()
         h_take = gate.header.valid & h_go
         m.d.sync += h_go.eq(pk.header.ready & ready_h & ~h_take)
