@@ -16,15 +16,16 @@ pipeline's worst path on seed 3 of the fifty-second session). ABC told to map ev
 delay (``abc9 -W 1000`` with no area recovery, forty-ninth session) duplicated logic across
 the whole design and placed 40 MHz lower; no Yosys pass remaps chosen cones for depth alone.
 This pass touches only the flip-flops' own cones: on the one-lane pipeline it takes the
-registers two or more levels deep from 282 to 131 for some 350 LUT4s. Placed, it did not
-raise the clock (the registers it made one LUT6 deep missed more often than a LUT4's, and
-those it cannot touch still hold the clock: ``docs/fpga.md``, "Small cones one LUT deep"),
-so ``hdl.synth`` runs it only when asked (``remap``, ``--remap 6``).
+registers two or more levels deep from 282 to 131 for some 350 LUT4s. Placed, six sources
+did not raise the clock (the registers made one LUT6 deep missed more often than a LUT4's);
+four sources, each cone one ``LUT4``, raised the lowest of five seeds (``docs/fpga.md``,
+"Small cones one LUT deep"), so ``hdl.synth`` runs it at four by default
+(:data:`hdl.synth.REMAP_INPUTS`; ``--remap K``, 0 for Yosys's netlist as it is).
 
 :func:`check_equivalent` proves the result equal to Yosys's netlist with Yosys's own
 equivalence checker and its ECP5 cell models (``+/lattice/common_sim.vh``), every flip-flop
 and hard block cut out, so every input of each is proven the same function of the outputs of
-all of them. ``hdl.synth`` runs both on a netlist it places with ``remap``.
+all of them. ``hdl.synth`` runs both on every netlist it places with ``remap`` not 0.
 """
 
 from __future__ import annotations

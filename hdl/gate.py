@@ -201,7 +201,9 @@ class Gate(wiring.Component):
         _, delay_lt3 = less(gate_delay, 3, "delay_less3")
         no_delay = q(delay_lt1, 1, "no_delay")
         single0 = q(delay_lt1 & len_lt2, 1, "single0")  # no delay and length 1
-        single1 = q(delay_lt2 & ~delay_lt1 & len_lt2, 1, "single1")  # delay 1 and length 1
+        # delay 1 and length 1 (= delay1 & len1, a register of its own so that `fresh0_1`'s
+        # idle load reads one flag)
+        single1 = q(delay_lt2 & ~delay_lt1 & len_lt2, 1, "single1")
         delay1 = q(delay_lt2 & ~delay_lt1, 1, "delay1")
         delay2 = q(delay_lt3 & ~delay_lt2, 1, "delay2")
         delay_m2 = q(delay_less2, gate_delay.shape(), "delay_m2")
