@@ -579,9 +579,34 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None,
     for name, nxt in (ahead or {}).items():
         field = getattr(o.payload, name)
         reg = Signal.like(field, name=f"obuf_{name}")
-        tk, no = (getattr(data.View(head.shape(), h), name) for h in (head_tk, head_no))
+        tk, no = _shadow_queue(m, f"obuf_{name}", getattr(data.View(pipe.shape(), pipe), name),
+                               held, take)
         m.d.sync += reg.eq(Mux(take, Mux(held_tk, tk, nxt), Mux(held_no, no, nxt)))
         m.d.comb += field.eq(reg)
+
+
+def _shadow_queue(m: Module, name: str, beat, held, take):
+    """A copy of one narrow field of the output buffer's queue in registers that move down at
+    every pop (``_output_buffer``): entry i is the field of the i-th beat held (0 the head).
+
+    Returns the head's field after this clock for a take and for none (each meaningful when
+    a beat is held after it), each a LUT of registers and ``beat`` (the pipeline's field).
+
+    The buffer keeps its beats in LUT RAM; the ahead fields (the detector's ``first`` and
+    ``last``) read the entry after the head there: its read pointer -> the RAM -> the
+    head-or-pipe choice -> ``obuf_last``, beside the detector, was the pipeline's worst path
+    (6.01 ns, fifty-fourth session). Here the entry after the head is a flip-flop. Every
+    entry's next value depends on the handshake and two thermometer flags only, as the
+    buffer's own pointers do: a free entry takes the pipeline's beat (the first free one
+    keeps it when it is pushed; the rest are overwritten before they are read).
+    """
+    n = len(held)
+    q = [Signal.like(beat, name=f"{name}_q{i}") for i in range(n)]
+    # at a take the queue moves down one (with nothing held, every entry is free)
+    q_tk = [Mux(held[i + 1], q[i + 1], beat) if i + 1 < n else beat for i in range(n)]
+    q_no = [Mux(held[i], q[i], beat) for i in range(n)]
+    m.d.sync += [qi.eq(Mux(take, tk, no)) for qi, tk, no in zip(q, q_tk, q_no, strict=True)]
+    return q_tk[0], q_no[0]
 
 
 def _fifo_ports(width: int) -> dict:
