@@ -15,7 +15,7 @@ from functools import reduce
 from operator import or_
 from typing import NamedTuple
 
-from amaranth.hdl import Const, Mux, Signal, Value, signed, unsigned
+from amaranth.hdl import Cat, Const, Mux, Signal, Value, signed, unsigned
 from amaranth.lib import data
 
 from model.matched_filter import OUT_WIDTH
@@ -134,9 +134,9 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     """
     L, LA, depth = lanes, lookahead, levels
     mu_lo, mu_hi, dev_hi, mu_end, dev_end = windows
-    # S0: the window flags per lane, from the beat's base (a lane holds sample base + j; lanes
-    # at or past count are empty); S1: the masked samples. Compares and the mask in one clock
-    # were a worst path.
+    # S0: the window compares per lane, from the beat's base (a lane holds sample base + j;
+    # lanes at or past count are empty); S1: the masked samples. Compares and the mask in one
+    # clock were a worst path.
     side = data.StructLayout({"valid": 1, "first": 1, "close_mu": 1, "close_dev": 1,
                               "tag": TAG_WIDTH, **({"push": 1} if LA else {})})
     # S0 holds the side band but the close flags, which are per lane there (below)
@@ -144,35 +144,51 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     s0 = Signal(data.StructLayout({f: side[f].shape for f in passed}))
     s1 = Signal(side)
     s0_y = Signal(data.ArrayLayout(_Y, L))
-    s0_mu, s0_dev = Signal(L), Signal(L)
     s1_mu = [Signal(_Y, name=f"s1_mu{j}") for j in range(L)]
     s1_y = Signal(data.ArrayLayout(_Y, L))
     s1_dev = Signal(L)
-    close_mu, close_dev = [], []
+    # S0 registers the compares' signs as they leave their carry chains, and S1 makes the
+    # window flags of them, each one LUT (the mask reads three flags and the sample's bit):
+    # with the flags' ANDs in S0, D1's base -> a chain -> a LUT -> `s0_close_mu0` (and the
+    # mask flags) missed 200 MHz on three placements of four of the one-lane pipeline
+    # (fifty-fifth session). The close flags, ORed over the lanes in S1, stay ANDed in S0
+    # when there are several lanes: an OR of a three-input term per lane would be deeper.
+    used = [Const(j) < st_beat.count for j in range(L)]
+    sign = {}
     for j in range(L):
-        used = Const(j) < st_beat.count
         # (position compares as subtraction signs, here and below: as compares they left
         # the carry out of the chain to an extra cell and a LUT, a worst path)
-        past_lo = ~_sub_sign(m, st_base, mu_lo[j], f"s0_lo{j}")
-        past_hi = ~_sub_sign(m, st_base, mu_hi[j], f"s0_hi{j}")
-        before_end = _sub_sign(m, st_base, dev_hi[j], f"s0_end{j}")
-        m.d.sync += [s0_mu[j].eq(used & past_lo & ~past_hi),
-                     s0_dev[j].eq(used & past_hi & before_end)]
-        # "at the window's last sample" as at or past it and not past the window (equalities
-        # of the base were a tree of four LUTs, a worst path). Registered per lane; the OR of
-        # the lanes is S1's (the OR after the compares, in one clock, was seed 3's worst path
-        # of the 10 x 12 join: the base -> a 15-bit carry chain -> three LUTs, 10.0 ns)
-        close_mu.append(_reg(m, used & ~_sub_sign(m, st_base, mu_end[j], f"s0_mu_end{j}")
-                             & ~past_hi, 1, f"s0_close_mu{j}"))
-        close_dev.append(_reg(m, used & ~_sub_sign(m, st_base, dev_end[j], f"s0_dev_end{j}")
-                              & before_end, 1, f"s0_close_dev{j}"))
+        for key, bound in (("lo", mu_lo), ("hi", mu_hi), ("end", dev_hi)):
+            sign[key, j] = _sub_sign(m, st_base, bound[j], f"s0_{key}{j}")
+        sign["mu_end", j] = _sub_sign(m, st_base, mu_end[j], f"s0_mu_end{j}")
+        sign["dev_end", j] = _sub_sign(m, st_base, dev_end[j], f"s0_dev_end{j}")
+    # at the window's last sample, as at or past it and not past the window (equalities of
+    # the base were a tree of four LUTs, a worst path); per lane: (base < mu_hi, base <
+    # mu_end), (base < dev_hi, base < dev_end)
+    close_terms = {"mu": ("hi", "mu_end"), "dev": ("end", "dev_end")}
+    if L == 1:
+        q = {k: _reg(m, v, 1, f"s0_{k[0]}_q{k[1]}") for k, v in sign.items()}
+        used_q = [_reg(m, used[0], 1, "s0_used0")]
+        close = {w: [used_q[0] & q[a, 0] & ~q[b, 0]] for w, (a, b) in close_terms.items()}
+    else:
+        q = {k: _reg(m, v, 1, f"s0_{k[0]}_q{k[1]}") for k, v in sign.items()
+             if k[0] in ("lo", "hi", "end")}
+        used_q = [_reg(m, u, 1, f"s0_used{j}") for j, u in enumerate(used)]
+        # (registered per lane, the OR of the lanes is S1's: the OR after the compares, in
+        # one clock, was seed 3's worst path of the 10 x 12 join: the base -> a 15-bit carry
+        # chain -> three LUTs, 10.0 ns)
+        close = {w: [_reg(m, used[j] & sign[a, j] & ~sign[b, j], 1, f"s0_close_{w}{j}")
+                     for j in range(L)] for w, (a, b) in close_terms.items()}
+    s0_mu = [used_q[j] & ~q["lo", j] & q["hi", j] for j in range(L)]
+    s0_dev = [used_q[j] & ~q["hi", j] & q["end", j] for j in range(L)]
     m.d.sync += [s0_y.eq(st_beat.y), s0.valid.eq(st_valid), s0.first.eq(st_beat.first),
                  s0.tag.eq(st_tag)]
     if LA:
         m.d.sync += s0.push.eq(e_push)
     m.d.sync += [s1_mu[j].eq(Mux(s0_mu[j], s0_y[j], 0)) for j in range(L)]
-    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(s0_dev), *(s1[f].eq(s0[f]) for f in passed),
-                 s1.close_mu.eq(reduce(or_, close_mu)), s1.close_dev.eq(reduce(or_, close_dev))]
+    m.d.sync += [s1_y.eq(s0_y), s1_dev.eq(Cat(s0_dev)), *(s1[f].eq(s0[f]) for f in passed),
+                 s1.close_mu.eq(reduce(or_, close["mu"])),
+                 s1.close_dev.eq(reduce(or_, close["dev"]))]
     # the baseline tree, its running sum, then mu
     mu_tree = _sum_tree(m, s1_mu, "mu_tree")
     sd = _delay(m, s1, depth + 3, "side")  # sd[i]: the side band i clocks after S1
