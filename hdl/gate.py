@@ -19,14 +19,14 @@ consumer never sees a partial frame, however long it holds ``ready`` low.
 
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Const, Module, Mux, Signal
+from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
 from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 
-from ._primitives import _cut, _le, _reg, _step, _Store, _sub
+from ._primitives import _le, _reg, _step, _Store, _sub
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
 __all__ = ["DROP_BITS", "HEADER_LATENCY", "LATENCY", "Gate"]
@@ -409,15 +409,7 @@ class Gate(wiring.Component):
         hwr = hw_en | (single_q & admit)
         # the header room after this clock's write: hlfree - hwr_q - hwr >= 1, from the sign
         # bits of hlfree - 1 .. - 3 (as `one_q` below)
-        # (as one LUT choosing between the room after a write and after none, each a LUT of
-        # registers, with `admit`'s choice among the fits a LUT of its own beside them: made
-        # from `hwr`, Yosys put the fits -> `admit` -> `hwr` -> the room in series, three
-        # levels, and `fit1` -> `hroom_q` missed 200 MHz on two placements of four of the
-        # one-lane pipeline, fifty-fifth session)
-        signs = [v[-1] for v in hlfree_m]
-        room_if = [_cut(m, ~_by_pending(hwr_q, Const(w), signs), f"hroom_if{w}") for w in (0, 1)]
-        admits = _cut(m, _by_pending(wr_q, wr_q2, fits), "admit_fits")
-        hroom = Mux(hw_en | (single_q & hroom_q & admits), room_if[1], room_if[0])
+        hroom = ~_by_pending(hwr_q, hwr, [v[-1] for v in hlfree_m])
         m.d.sync += [
             # (two carry chains and a choice after them: `busy` choosing the length before
             # the chain put its LUT in front of the carries, the gate's worst path alone)
