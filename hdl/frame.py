@@ -525,16 +525,12 @@ class FramePacketizer(wiring.Component):
             # the wide enable were the pipeline's worst path in two seeds (7.41 and 7.61 ns, 6
             # of it routing).
             m.d.sync += sh.eq(Cat(fin, res.surface, res.bottom))
-            # `raddr` restarts whether the packet is sent or not (nothing reads it before the
-            # next LINK_HEADER): its reset is then the state's flip-flop, where the decision
-            # put `send` -> two LUTs in front of it (the one-lane pipeline's `buf.r_addr` missed
-            # 200 MHz on two placements of four, fifty-fifth session)
-            m.d.sync += raddr.eq(0)
             with m.If(send):
                 m.d.sync += [
                     pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
                                Const(PacketType.FRAME, 8), seq, body)),
                     pos.eq(1),
+                    raddr.eq(0),
                     *advance(1, False),
                     seq.eq(seq + 1),
                     self.frames_sent.eq(self.frames_sent + 1),
