@@ -265,16 +265,11 @@ def elaborate(top, platform):
     ms_gt = [_reg(m, _sub_sign(m, Const(j, range(3 * L)), cfg.min_sep, f"ms_gt{j}"), 1,
                   f"ms_gt{j}", True) for j in range(3 * L)]
     # min_sep + j - 1 per lane, so that "c + min_sep" of a lane's centre is one add; capped
-    # where no centre of a frame can reach it (from min_sep - 1 registered and, beside it,
-    # whether the lane's value stays below the cap, min_sep - 1 + j <= cap: an add, then the
-    # choice. With the cap's compare made of `ms_m1` beside the add, its 17-bit chain and
-    # the choice were the detector alone's worst path on its lowest seed, 5.52 ns,
-    # fifty-fifth session.)
+    # where no centre of a frame can reach it (from min_sep - 1 registered: an add and a
+    # compare side by side, then the choice)
     cap = (1 << _POS.width) - 1
     ms_m1 = _reg(m, cfg.min_sep - 1, signed(len(cfg.min_sep) + 1), "ms_m1", True)
-    ms_fits = [_reg(m, _sub_sign(m, cfg.min_sep, Const(cap + 2 - j), f"ms_fits{j}"), 1,
-                    f"ms_fits{j}", True) for j in range(L)]
-    ms_lane = [_reg(m, Mux(ms_fits[j], ms_m1 + j, cap), pos, f"ms_lane{j}", True)
+    ms_lane = [_reg(m, Mux(ms_m1 > cap - j, cap, ms_m1 + j), pos, f"ms_lane{j}", True)
                for j in range(L)]
 
     # ---- D1: the beat being decided, held while it waits; a skid register before it ----
