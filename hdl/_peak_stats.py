@@ -163,8 +163,8 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
         sign["mu_end", j] = _sub_sign(m, st_base, mu_end[j], f"s0_mu_end{j}")
         sign["dev_end", j] = _sub_sign(m, st_base, dev_end[j], f"s0_dev_end{j}")
     # at the window's last sample, as at or past it and not past the window (equalities of
-    # the base were a tree of four LUTs, a worst path); per lane: (base < mu_hi, base <
-    # mu_end), (base < dev_hi, base < dev_end)
+    # the base were a tree of four LUTs, a worst path): per lane `used & a & ~b` for the
+    # signs (a, b) = (base < mu_hi, base < mu_end), (base < dev_hi, base < dev_end)
     close_terms = {"mu": ("hi", "mu_end"), "dev": ("end", "dev_end")}
     if L == 1:
         q = {k: _reg(m, v, 1, f"s0_{k[0]}_q{k[1]}") for k, v in sign.items()}
