@@ -382,23 +382,21 @@ def elaborate(top, platform):
         busy = Signal()
         tag_eq = Signal(name="tag_eq")  # thr_tag == d1_tag (below: == last_tag)
         stays = Signal(name="busy_stays")  # busy after this clock, if D1's beat stays
-        # Each beat's decision without the busy term, a LUT of registers on a kept wire
-        # (`h_may`: H's beat may go, `d1_may`: D1's), and the busy term (`stays`) the same:
-        # `go` is then one choice of seven sources (go, D1's valid and `last`, H's `last` and
-        # the three). Left to ABC, the thirteen sources were three LUTs deep, and `go` missed
-        # 200 MHz on four of eight placements of the fifty-fifth session's recorded netlist.
         m.d.comb += stays.eq(busy & ~(top.o.valid & top.o.ready))
-        h_may = _cut(m, h_valid & (~hb.needs | (tag_eq & ~hb.beat.first)), "h_may")
-        d1_may = _cut(m, ~h1.needs | tag_eq, "d1_may")
-        stays_k = _cut(m, stays, "busy_stays_k")
 
-        def taken(busy_next):  # the beat D1 takes now: H's
-            return h_may & ~(busy_next & hb.beat.last)
+        def may_go(b, loaded, busy_next: bool):
+            ok = ~b.needs | (tag_eq & (~b.beat.first if loaded else 1))
+            return ok & ~b.beat.last if busy_next else ok
 
-        def kept(busy_next):  # D1's own beat, or H's if D1 is empty
-            return Mux(~d1_valid, taken(busy_next), d1_may & ~(busy_next & d1.last))
+        def taken(busy_next: bool):  # the beat D1 takes now: H's
+            return h_valid & may_go(hb, True, busy_next)
 
-        m.d.sync += go.eq(Mux(go, taken(d1.last | stays_k), kept(stays_k)))
+        def kept(busy_next: bool):  # D1's own beat, or H's if D1 is empty
+            return Mux(~d1_valid, taken(busy_next), may_go(h1, False, busy_next))
+
+        if_goes = Mux(d1.last | stays, taken(True), taken(False))
+        if_stays = Mux(stays, kept(True), kept(False))
+        m.d.sync += go.eq(Mux(go, if_goes, if_stays))
 
         st_beat, st_base, st_tag, st_valid = d1, d1_base, d1_tag, fresh
     else:
