@@ -166,14 +166,12 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     # the base were a tree of four LUTs, a worst path): per lane `used & a & ~b` for the
     # signs (a, b) = (base < mu_hi, base < mu_end), (base < dev_hi, base < dev_end)
     close_terms = {"mu": ("hi", "mu_end"), "dev": ("end", "dev_end")}
+    q = {k: _reg(m, v, 1, f"s0_{k[0]}_q{k[1]}") for k, v in sign.items()
+         if L == 1 or k[0] in ("lo", "hi", "end")}
+    used_q = [_reg(m, u, 1, f"s0_used{j}") for j, u in enumerate(used)]
     if L == 1:
-        q = {k: _reg(m, v, 1, f"s0_{k[0]}_q{k[1]}") for k, v in sign.items()}
-        used_q = [_reg(m, used[0], 1, "s0_used0")]
         close = {w: [used_q[0] & q[a, 0] & ~q[b, 0]] for w, (a, b) in close_terms.items()}
     else:
-        q = {k: _reg(m, v, 1, f"s0_{k[0]}_q{k[1]}") for k, v in sign.items()
-             if k[0] in ("lo", "hi", "end")}
-        used_q = [_reg(m, u, 1, f"s0_used{j}") for j, u in enumerate(used)]
         # (registered per lane, the OR of the lanes is S1's: the OR after the compares, in
         # one clock, was seed 3's worst path of the 10 x 12 join: the base -> a 15-bit carry
         # chain -> three LUTs, 10.0 ns)
