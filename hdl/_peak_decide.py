@@ -98,16 +98,15 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_gt,
     s_found, sep_at, d3_new, d3_any, d3_elig = _surface(
         m, top.surface, L, d2, d2_valid, d2_peak, d2_speak, d2_sfo, d2a_cpos, d2_cpos, ms_gt)
     # The beat travels with its valid bit to C, 4 depth + 8 clocks after D2; it is read at
-    # D3 (bd1: everything), a clock before R (bt_r, 2 depth + 1 clocks on: the samples), B2
-    # (bt_b, 4 depth + 6 clocks on: samples, templates, base, first) and C (bt_c: last,
-    # long). The long stretches are LUT RAMs (hdl._primitives._delay_to): as registers the
-    # stretch to B2 was 6 of the one-lane detector's 8 x 101 delay flip-flops, a fifth of all
-    # of them, and at ten lanes the two were 22 stages of 370 bits and 10 of 264. The valid
-    # bits stay registers: they gate every use of a word.
+    # D3 (bd1: everything), R (bt_r, 2 depth + 2 clocks on: the samples), B2 (bt_b, 4 depth
+    # + 6 clocks on: samples, templates, base, first) and C (bt_c: last, long). The long
+    # stretches are LUT RAMs (hdl._primitives._delay_to): as registers the stretch to B2
+    # was 6 of the one-lane detector's 8 x 101 delay flip-flops, a fifth of all of them,
+    # and at ten lanes the two were 22 stages of 370 bits and 10 of 264. The valid bits stay
+    # registers: they gate every use of a word.
     vd = _delay(m, d2_valid, 4 * depth + 8, "valid")
     bd1 = _reg(m, d2, d2.shape(), "beat_1")
-    # (a clock short of R: `_best_lane` takes the rule's choice into a register of its own)
-    bt_r = _delay_to(m, bd1.e, 2 * depth + 1, "beat_r")
+    bt_r = _delay_to(m, bd1.e, 2 * depth + 2, "beat_r")
     bt_b = _delay_to(m, bd1, 4 * depth + 6, "beat_b")
     bt_c = _reg(m, Cat(bt_b.last, bt_b.long), 2, "beat_c")
     # the lanes' centres and s + min_sep per lane at D3 in registers of their own, a clock
@@ -121,7 +120,7 @@ def decide(m, top, *, levels, go, d1, d1_base, d1_needs, d1_tag, cand_at, ms_gt,
     pm, seg = _prefix_minimum(m, L, depth, bd1, d3_new)
     # "eligible as a bottom" travels beside the minimum to R
     elig = _delay(m, d3_elig, 2 * depth + 1, "elig")
-    run_min = _running_minimum(m, L, depth, pm, seg, vd, rule[2])
+    run_min = _running_minimum(m, L, depth, pm, seg, vd)
     elig_v = _reg(m, elig[-1], L, "elig_v")
     win, node = _best_lane(m, rule, L, depth, bt_r, run_min, elig_v,
                            stats.cur_thr_k if LA else stats.thr, LA)
@@ -303,10 +302,9 @@ def _prefix_minimum(m, L, depth, bd1, d3_new):
     return pm, seg
 
 
-def _running_minimum(m, L, depth, pm, seg, vd, rise):
+def _running_minimum(m, L, depth, pm, seg, vd):
     """V: the running minimum carried from beat to beat (two clocks, L and U); returns per
-    lane the minimum of ``y`` from the surface on, registered (``run_min``), where ``rise``
-    (the bottom rule is 2) is set, and zero where it is not."""
+    lane the minimum of ``y`` from the surface on, registered (``run_min``)."""
     # The running minimum vmin carried from beat to beat; lanes in the surface's segment do
     # not take it (it belongs to the frame before the surface). A compare and a select in one
     # loop clock were the worst path, so the loop takes two: L compares, U selects. Each lane
@@ -319,31 +317,22 @@ def _running_minimum(m, L, depth, pm, seg, vd, rise):
     vmin = Signal(_Y)
     with m.If(vd[2 * depth + 1]):
         m.d.sync += [p_prev.eq(pm[-1]), s_prev.eq(seg[-1])]
-    # What the lanes read is zero unless the rule is 2 (`rise`), so that the key after it is
-    # one subtraction for every rule (`_best_lane`); the loop keeps its own unzeroed copies.
-    # (The zero on the operands' registers, one LUT of a register and the rule: taken at the
-    # select, it made the select a LUT6.)
-    def rise_only(v, name):
-        return _reg(m, Mux(rise, v, 0), _Y, name)
-
-    x, x_o = _reg(m, vmin, _Y, "vx"), rise_only(vmin, "vx_o")
-    pl, pl_o = _reg(m, p_prev, _Y, "vp"), rise_only(p_prev, "vp_o")
-    run_min = []
+    x = _reg(m, vmin, _Y, "vx")
+    pl = _reg(m, p_prev, _Y, "vp")
+    sel = []
     for j in range(L):
         # (the compares as subtraction signs: no LUT after the carry chains)
         pm_lt_p = _reg(m, _sub_sign(m, pm[j], p_prev, f"vc{j}"), 1, f"vc{j}")
         pm_lt_x = _reg(m, _sub_sign(m, pm[j], vmin, f"va{j}"), 1, f"va{j}")
         p_lt_x = _reg(m, _sub_sign(m, p_prev, vmin, f"vb{j}"), 1, f"vb{j}")
-        pm_o = rise_only(pm[j], f"vpm_o{j}")
+        pm_l = _reg(m, pm[j], _Y, f"vpm{j}")
         seg_l, near = _reg(m, seg[j], 1, f"vs{j}"), _reg(m, s_prev, 1, f"vn{j}")
         take_pm = seg_l | (pm_lt_p & (near | pm_lt_x))
         take_p = ~seg_l & ~pm_lt_p & (near | p_lt_x)
-        run_min.append(_reg(m, Mux(take_pm, pm_o, Mux(take_p, pl_o, x_o)), _Y, f"run_min{j}"))
-        if j == L - 1:
-            pm_l = _reg(m, pm[j], _Y, f"vpm{j}")
-            with m.If(vd[2 * depth + 2]):
-                m.d.sync += vmin.eq(Mux(take_pm, pm_l, Mux(take_p, pl, x)))
-    return run_min
+        sel.append(Mux(take_pm, pm_l, Mux(take_p, pl, x)))
+    with m.If(vd[2 * depth + 2]):
+        m.d.sync += vmin.eq(sel[-1])
+    return [_reg(m, sel[j], _Y, f"run_min{j}") for j in range(L)]
 
 
 def _best_lane(m, rule, L, depth, e_r, run_min, elig_v, thr, LA):
@@ -356,15 +345,11 @@ def _best_lane(m, rule, L, depth, e_r, run_min, elig_v, thr, LA):
     the frame's capped ``cur_thr_k`` with it (carried with the beat from D1).
     """
     # R: the key per lane; K: eligible and, for rule 2, rising above thr
-    # The key is one subtraction, the rule's choice made before it in registers of their own:
-    # the sample (the lane for rule 0) a clock ahead of the key, and the running minimum zero
-    # unless the rule is 2 (`_running_minimum`). (As a choice after the chain, rule 14's LUT,
-    # `key0` missed 200 MHz on three of eight placements of the one-lane pipeline and was the
-    # only register missing it on the recorded seed 1, fifty-fifth session's code.)
     keys = []
     for j in range(L):
-        b = _reg(m, Mux(rule[0], j, e_r[j + 1]), _Y, f"key_b{j}")
-        keys.append(_reg(m, b - run_min[j], _KEY, f"key{j}"))
+        b = e_r[j + 1]
+        keys.append(_reg(m, Mux(rule[0], j, Mux(rule[1], b, b - run_min[j])), _KEY,
+                         f"key{j}"))
     # (the rise's compare with thr registered on its own: with the AND into ok it was a worst
     # path)
     # against thr capped at the largest key, registered once per frame (the 33-bit compare
