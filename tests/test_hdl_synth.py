@@ -80,8 +80,11 @@ class TestSynth:
         r = json.loads(capsys.readouterr().out)["components"]["albcap_stitch"]
         assert set(r["seeds"]) == {"1", "2"}
         assert r["fmax_mhz"] == min(r["seeds"].values()) == r["seeds"][str(r["seed"])]
+        assert r["seeds_mean_mhz"] == round(sum(r["seeds"].values()) / 2, 1)
         print_table({"device": DEVICE, "components": {"albcap_stitch": r}})
-        assert f"the lowest, seed {r['seed']}, shown" in capsys.readouterr().out
+        out = capsys.readouterr().out
+        assert f"the lowest, seed {r['seed']}, shown" in out
+        assert f"(mean {r['seeds_mean_mhz']})" in out
         for bad in ([], [1, 1]):
             with pytest.raises(ValueError, match=r"seeds must be one or more distinct"):
                 synth_all(["albcap_stitch"], seed=bad)
