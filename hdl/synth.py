@@ -635,6 +635,13 @@ def failing_endpoints(report: dict, period_ns: float,
                       for reg, v in ranked[:worst]]}
 
 
+def seeds_mean(seeds: dict) -> float:
+    """The mean fmax, MHz to a tenth, of one netlist's placements ``{seed: fmax_mhz}``: what
+    a change is compared by, since one netlist's seeds spread more than most changes move
+    it (``docs/fpga.md``, "How a change is measured here")."""
+    return round(sum(seeds.values()) / len(seeds), 1)
+
+
 def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
@@ -673,10 +680,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
                                           placer, seeds, static, floorplan, jobs, remap)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
-            lowest = {**lowest, "seeds": {str(r["seed"]): r["fmax_mhz"] for r in runs},
-                      # what a change is compared by: one netlist's seeds spread more than
-                      # most changes move it ("How a change is measured here")
-                      "seeds_mean_mhz": round(sum(r["fmax_mhz"] for r in runs) / len(runs), 1),
+            each = {str(r["seed"]): r["fmax_mhz"] for r in runs}
+            lowest = {**lowest, "seeds": each, "seeds_mean_mhz": seeds_mean(each),
                       "missing_on": missing_on(missed),
                       "missing_any": len(set().union(*missed)),
                       "missing_by_depth": missing_by_depth(depth, missed)}
@@ -808,9 +813,9 @@ def print_table(res: dict) -> None:
                   f"{w['routing_ns']} of it routing, {w['logic_steps']} logic steps")
         if r.get("seeds"):
             each = ", ".join(f"{s}: {v}" for s, v in r["seeds"].items())
-            mean = round(sum(r["seeds"].values()) / len(r["seeds"]), 1)  # (older records too)
-            print(f"{'':>16} seeds {each} MHz (mean {mean}); the lowest, seed {r['seed']}, "
-                  "shown")
+            # (from the seeds: records made before `seeds_mean_mhz` print it too)
+            print(f"{'':>16} seeds {each} MHz (mean {seeds_mean(r['seeds'])}); the lowest, "
+                  f"seed {r['seed']}, shown")
         f = r.get("failing")
         if f and f["endpoints"]:
             names = ", ".join(f"{x['register']} ({x['slack_ns']:+.2f})" for x in f["worst"][:4])
