@@ -42,7 +42,7 @@ from ._levels import cell_register, deepest_path, logic_levels
 from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "failing_endpoints", "figure_key", "levels", "missing_on",
-           "record_figures", "synth_all", "synth_components", "synthesize"]
+           "record_figures", "seeds_mean", "synth_all", "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
