@@ -484,7 +484,7 @@ def _thermometer_next(t, up, down, up_top=None):
 
 
 def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None,
-                   valid_ahead=None):
+                   valid_ahead=None, slots: int | None = None):
     """The output buffer of ``capacity`` beats behind a free-running pipeline's last stage
     ``pipe`` (the matched filter's, the stitch's): a FIFO in LUT RAM (``capacity`` rounded up
     to a power of two) whose head is also kept in a register, bypassed when empty.
@@ -503,7 +503,14 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None,
 
     ``valid_ahead`` (optional) is ``pipe_valid``'s next value in the same way; ``o.valid``
     is then a register (``obuf_valid``), else the OR of ``pipe_valid`` and "any held".
+
+    ``slots`` (optional, ``capacity`` by default, at least ``capacity - 1``): the memory's
+    words before the rounding up. ``capacity - 1`` suffice: the slot of the head is dead once
+    the head register holds it (the memory is read only at the slot after it), so the write
+    may land there. (The default keeps the other buffers' netlists as they were measured.)
     """
+    if slots is not None and not capacity - 1 <= slots:
+        raise ValueError(f"slots must be at least capacity - 1 = {capacity - 1}, not {slots}")
     # The buffer was 16 register entries that moved down one at every pop, each entry's
     # select made from the `o` handshake: the pipeline's `valid` -> push/pop -> the selects of
     # 16 x 30 bits was the worst path (5.9 ns, 4.3 of it routing). Now every write is made
@@ -517,7 +524,7 @@ def _output_buffer(m: Module, o, capacity: int, pipe, pipe_valid, ahead=None,
     # pipeline's beat when that is the one that follows. Read at `r_ptr` as the payload, the
     # RAM's output went on through the pipeline's fork into the detector's decision register:
     # the pipeline's worst path (6.57 ns, 4.7 of it routing).
-    size = 1 << max(1, (capacity - 1).bit_length())
+    size = 1 << max(1, ((capacity if slots is None else slots) - 1).bit_length())
     ram = memory.Memory(shape=pipe.shape(), depth=size, init=[])
     m.submodules.obuf = ram
     wp = ram.write_port()

@@ -12,12 +12,13 @@ filter's input and the detector's input sit at most ``hdl.matched_filter.LATENCY
 per pipeline register; a stall holds them, it never adds any), so by then the filter has
 accepted samples up to ``s + LATENCY + SURFACE_LATENCY + SURFACE_APPLY`` at the most, all of
 them before the surface was known. They must all still use template 0, so the join is exact for
-``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (24 at one
-lane), below the register's floor of 26; the pipeline's join, with a register slice before its
-fork, needs 26, the floor itself (:attr:`FilterDetect.min_bin_offset`), so a clock more in the
+``bin_offset >= MIN_BIN_OFFSET = LATENCY + SURFACE_LATENCY + SURFACE_APPLY + 1`` (25 at one
+lane), below the register's floor of 27; the pipeline's join, with a register slice before its
+fork, needs 27, the floor itself (:attr:`FilterDetect.min_bin_offset`), so a clock more in the
 filter, on the detector's surface path or at the fork needs the floor raised (as the detector's
-input register H raised it from 24, fifty-first session, and the filter's registered switch
-compares from 25, fifty-second). Tested at the floor with surfaces on plain, idle and
+input register H raised it from 24, fifty-first session, the filter's registered switch
+compares from 25, fifty-second, and the filter's adder tree ending in halves from 26,
+fifty-ninth). Tested at the floor with surfaces on plain, idle and
 back-pressured traffic, and with more lanes at ``min_bin_offset`` itself
 (``tests/test_hdl_detect_lanes.py``).
 

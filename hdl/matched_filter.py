@@ -64,7 +64,7 @@ N_WIDTH = by_name("gate_len").width
 #: below half the tag range, so "older" and "newer" are told apart modulo ``2^TAG_WIDTH``.
 TAG_WIDTH = 8
 #: Clocks from an accepted input sample to its output being valid, with no backpressure.
-LATENCY = 15
+LATENCY = 16
 #: Samples accepted and not yet taken at the output, at most (one lane): ``i.ready`` is low
 #: while this many are inside. The pipeline sizes the ring beside the filter by it
 #: (``FilterDetect.y_capacity``).
@@ -323,6 +323,45 @@ def _round_saturate(m: Module, acc, sh, over_at, under_at, y, prefix: str = "",
     m.d.sync += y.eq(Mux(over, _Y_HI, Mux(under, _Y_LO, t_low[1:])))
 
 
+#: Low bits of an add in the adder tree's last two levels (:func:`_tree_halves`).
+_TREE_HALF = 19
+
+
+def _tree_halves(m: Module, level: list, first: int):
+    """The adder tree's last two levels (4 values -> 2 -> 1) in halves: each add's low
+    ``_TREE_HALF`` bits and their carry at one clock, its high bits with that carry at the
+    next, so that no chain is longer than about 20 bits. Three clocks from ``level`` to the
+    sum (two levels, one of skew). Returns the sum, a register.
+
+    The last two adds gather sums made on DSP rows 24 tiles apart, and the root sat where the
+    rest of the design pulled it: a 3 ns route from `t4_0` in series with the root's 38-bit
+    chain (5.78 ns) was the one-lane pipeline's worst path on seed 4, and the root `t5_0`
+    missed 200 MHz on six of ten placements (fifty-eighth session). A value here is a pair
+    (low half, high half a clock later); ``level``'s high halves wait a clock in registers."""
+    h = _TREE_HALF
+    pairs = []
+    for i, v in enumerate(level):
+        hi = Signal(signed(len(v) - h), name=f"t{first - 1}_{i}_hi")
+        m.d.sync += hi.eq(v[h:].as_signed())
+        pairs.append((v[:h], hi))
+    lev = first
+    while len(pairs) > 1:
+        nxt = []
+        for i in range(0, len(pairs), 2):
+            (alo, ahi), (blo, bhi) = pairs[i], pairs[i + 1]
+            lo = Signal(h + 1, name=f"t{lev}_{i // 2}_lo")  # the low half and its carry
+            hi = Signal(signed(max(len(ahi), len(bhi)) + 1), name=f"t{lev}_{i // 2}_hi")
+            m.d.sync += [lo.eq(alo + blo), hi.eq(ahi + bhi + lo[h])]
+            nxt.append((lo[:h], hi))
+        pairs, lev = nxt, lev + 1
+    lo, hi = pairs[0]
+    acc = Signal(signed(h + len(hi)), name=f"t{lev - 1}_0")
+    lo_q = Signal(h, name=f"t{lev - 1}_0_lo_q")  # the low half, a clock on to meet the high
+    m.d.sync += lo_q.eq(lo)
+    m.d.comb += acc.eq(Cat(lo_q, hi))
+    return acc
+
+
 def _coef_chain(m: Module, coef, groups: int, read_after: int = 2):
     """The coefficient writes as a chain of ``groups`` registered links, link ``g`` a clock
     after link ``g - 1``, and the hold that keeps samples out until a write has passed the
@@ -560,14 +599,16 @@ class MatchedFilter(wiring.Component):
 
     Notes
     -----
-    Latency :data:`LATENCY` = 15 clocks, all registered: (1) the sample and the template index;
+    Latency :data:`LATENCY` = 16 clocks, all registered: (1) the sample and the template index;
     (2) the sample again, each tap's update flags (from ``taps``) and the index's copies, one
     per group of four taps; (3) the delay line, and the coefficients read from LUT RAM with
     those copies; (4) the multiplier inputs; (5) the ``L_MAX`` products (4 and 5 are a
     :class:`RegisteredMultiplier`, the ECP5 DSP block's own registers); (6) the products again,
-    in logic; (7 to 12) the adder tree, one two-input level per stage (64 to 1); (13) the shift
-    ``(2 acc) >> (out_shift & 24)`` and the saturation compares; (14) the rest of the shift,
-    ``>> (out_shift & 7)``; (15) round half up and saturate, the pipeline's last register. One
+    in logic; (7 to 10) the adder tree's first four levels, one two-input level per stage (64
+    to 4); (11 to 13) its last two levels in halves, each add's low bits and carry a clock
+    before its high bits (:func:`_tree_halves`); (14) the shift ``(2 acc) >> (out_shift &
+    24)`` and the saturation compares; (15) the rest of the shift, ``>> (out_shift & 7)``;
+    (16) round half up and saturate, the pipeline's last register. One
     sample per clock sustained while ``o.ready`` is high. The pipeline never stalls: it ends in
     an output buffer of ``LATENCY + 1`` entries (a FIFO in LUT RAM, written at every valid last
     stage from registers alone, bypassed when empty; ``o.payload`` is then the memory's
@@ -912,17 +953,19 @@ class MatchedFilter(wiring.Component):
             m.d.sync += p_reg.eq(mul.p)
             prods.append(p_reg)
 
-        # ---- stages 7..12: the adder tree, one level of two-input adds per stage (a 38-bit
-        # carry chain is most of a 5 ns clock) ----
+        # ---- stages 7..13: the adder tree, one level of two-input adds per stage (a 38-bit
+        # carry chain is most of a 5 ns clock), the last two levels in halves ----
         level = prods
         tree_stages = []
-        while len(level) > 1:
+        while len(level) > 4:
             nxt = [(Signal(signed(len(level[i]) + 1), name=f"t{len(tree_stages)}_{i // 2}"),
                     level[i] + level[i + 1]) for i in range(0, len(level), 2)]
             tree_stages.append(nxt)
             level = [a for a, _ in nxt]
-        assert len(tree_stages) == LATENCY - 9, "the latency assumes L_MAX = 64"
-        acc = level[0]
+        assert len(tree_stages) == LATENCY - 12, "the latency assumes L_MAX = 64"
+        for stage in tree_stages:
+            m.d.sync += [a.eq(v) for a, v in stage]
+        acc = _tree_halves(m, level, len(tree_stages))
         # ---- stages 13, 14: the shift (in two parts) and the saturation compares, stage 15:
         # round half up and saturate (see _round_saturate) ----
         sh = _out_shift(m, cfg)
@@ -933,8 +976,6 @@ class MatchedFilter(wiring.Component):
             sb[0].first.eq(d.first), sb[0].last.eq(d.last),
         ]
         m.d.sync += [sb[i].eq(sb[i - 1]) for i in range(1, LATENCY)]
-        for stage in tree_stages:
-            m.d.sync += [a.eq(v) for a, v in stage]
         pipe = Signal(FILTER_OUT)  # the pipeline's last stage
         last_sb = sb[LATENCY - 1]
         _round_saturate(m, acc, sh, over_at, under_at, pipe.y, split=True,
@@ -944,6 +985,9 @@ class MatchedFilter(wiring.Component):
 
         # the markers the detector decides on from registers of their own (_output_buffer)
         before = sb[LATENCY - 2]
+        # (capacity - 1 words: 16 where capacity's 17 would round up to 32, two LUT RAMs and
+        # a read mux, which became the filter's worst path when the tree was first tried in
+        # halves, forty-sixth session)
         _output_buffer(m, self.o, capacity, pipe, last_sb.valid,
-                       ahead={"first": before.first, "last": before.last})
+                       ahead={"first": before.first, "last": before.last}, slots=capacity - 1)
         return m

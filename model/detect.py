@@ -2,7 +2,7 @@
 
 The template in use depends on the surface, which the detector finds in the filter's own output.
 Hardware resolves this in sample order: the surface ``s`` is known when ``y[s + 1]`` arrives,
-and ``bin_offset >= 26`` samples pass before any template but 0 is needed.
+and ``bin_offset >= 27`` samples pass before any template but 0 is needed.
 
 Three implementations of the same rules, tested equal:
 
@@ -172,7 +172,7 @@ class FilterDetectStream:
     The chunk is consumed in sub-chunks of at most ``bin_offset - 1`` samples, the surface
     reported to the filter after each: if no surface is known after ``y[n0 - 1]``, any surface
     is at ``s >= n0 - 1``, so ``k(n) = 0`` for every ``n < n0 - 1 + bin_offset``, which covers
-    the next sub-chunk. That is the slack the spec's ``bin_offset >= 26`` gives the hardware.
+    the next sub-chunk. That is the slack the spec's ``bin_offset >= 27`` gives the hardware.
     """
 
     def __init__(self, bank: Bank, cfg: Config, batch_shape: tuple = ()):

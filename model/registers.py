@@ -44,7 +44,7 @@ _SPEC = [
     ("fine_div", 16, 1, 1, 65535, "gate", "sample clocks per fine-time tick"),
     ("frame_type", 2, 3, 0, 3, "gate", "payload: 0 raw, 1 stitched, 2 filtered, 3 peaks"),
     ("out_shift", 5, 15, 0, 31, "filter", "matched-filter output shift (round half up)"),
-    ("bin_offset", 16, 64, 26, 65535, "filter",
+    ("bin_offset", 16, 64, 27, 65535, "filter",
      "samples after the surface peak before template 1 is used"),
     ("bin_len", 16, 20, 1, 65535, "filter", "samples per depth bin (template) after that"),
     ("noise_log2", 4, 5, 2, 8, "peak", "log2 of the baseline and noise window lengths"),

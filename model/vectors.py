@@ -130,7 +130,7 @@ def _filter_cases(rng):
     N = 300
     for K, L, shift in ((1, 1, 0), (8, 32, 15), (16, 64, 20)):
         bank = _bank(rng, K, L)
-        cfg = Config(out_shift=shift, bin_offset=26, bin_len=7)
+        cfg = Config(out_shift=shift, bin_offset=27, bin_len=7)
         x = rng.integers(-32768, 32768, (6, N)).astype(np.int16)
         x[0] = 32767
         x[1] = -32768
@@ -200,7 +200,7 @@ def _chain_cases(rng):
     bank = Bank(np.rint(taps / np.linalg.norm(taps, axis=1)[:, None] * 20000).astype(np.int16))
     cases = []
     for mode in (0, 1):
-        cfg = Config(stitch_mode=mode, out_shift=12, bin_offset=26, bin_len=20)
+        cfg = Config(stitch_mode=mode, out_shift=12, bin_offset=27, bin_len=20)
         r = run_chain(adc, bank, cfg)
         recs, count = r.peaks.records()
         hdr = {k: np.zeros(8, np.int64) for k in

@@ -24,7 +24,7 @@ class TestChain:
     @pytest.mark.parametrize("mode", [0, 1])
     def test_vectorized_equals_per_frame_reference(self, batch, mode):
         adc, bank = batch
-        cfg = Config(stitch_mode=mode, out_shift=12, bin_offset=26, bin_len=30)
+        cfg = Config(stitch_mode=mode, out_shift=12, bin_offset=27, bin_len=30)
         a = run_chain(adc, bank, cfg)
         b = run_chain_reference(adc, bank, cfg)
         np.testing.assert_array_equal(a.stitched, b.stitched)
@@ -37,7 +37,7 @@ class TestChain:
         filter-and-detect loop against the per-frame reference, at a floor that half of the
         frames' first peaks fail."""
         adc, bank = batch
-        cfg = Config(stitch_mode=1, out_shift=12, bin_offset=26, bin_len=30, min_thr=20)
+        cfg = Config(stitch_mode=1, out_shift=12, bin_offset=27, bin_len=30, min_thr=20)
         plain = run_chain(adc, bank, cfg).peaks
         floor = int(np.median(plain.surface.amplitude[plain.surface.found]))
         cfg = cfg.replace(min_surf=floor)

@@ -203,7 +203,7 @@ class TestAmaranthSim:
 
         rng = np.random.default_rng(47)
         bank = Bank(np.array([[3], [-5]], np.int16))
-        cfg = Config(out_shift=0, bin_offset=26, bin_len=4, noise_log2=2, min_sep=2)
+        cfg = Config(out_shift=0, bin_offset=27, bin_len=4, noise_log2=2, min_sep=2)
         frames = [rng.integers(-300, 300, n).astype(np.int16) for n in (9, 1, 2, 3, 40, 7, 30)]
         frames[4][30] = 20_000  # a surface in one frame: the next frame's engine has none
         words = lane_words(frames, 2)

@@ -103,7 +103,7 @@ def traffic(case: Case, source=PLAIN, sink=PLAIN):
     }
 
 
-def random_case(K, L, seed, out_shift=22, bin_offset=26, bin_len=3):
+def random_case(K, L, seed, out_shift=22, bin_offset=27, bin_len=3):
     rng = np.random.default_rng(seed)
     coefs = rng.integers(S16_LO, S16_HI + 1, (K, L)).astype(np.int16)
     coefs[:, 0] = S16_LO  # the rails, at both ends of each template
@@ -128,7 +128,7 @@ def rails_case():
     bank = Bank(np.full((1, L), S16_LO, np.int16))
     frames = [np.full(200, S16_LO, np.int16), np.full(100, S16_HI, np.int16),
               np.tile(np.array([S16_LO, S16_HI], np.int16), 80), np.zeros(5, np.int16)]
-    cfg = Config(out_shift=0, bin_offset=26, bin_len=1)
+    cfg = Config(out_shift=0, bin_offset=27, bin_len=1)
     return Case(bank, cfg, frames, [10, -1, 0, 1])
 
 
@@ -140,13 +140,13 @@ def shift31_case():
                                                                         (15, 1))]
                                ).astype(np.int16))
     frames = [rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16) for n in (1, 25, 26, 60)]
-    return Case(bank, Config(out_shift=31, bin_offset=26, bin_len=1), frames, [0, 0, 1, 5])
+    return Case(bank, Config(out_shift=31, bin_offset=27, bin_len=1), frames, [0, 0, 1, 5])
 
 
 def lidar_case():
     """Echo-like frames through the stitch, the workload bank, surfaces from the model."""
     adc = synthetic_codes(6, 700, seed=11)
-    cfg = Config(bin_offset=26, bin_len=7)
+    cfg = Config(bin_offset=27, bin_len=7)
     bank = workload_bank(8, 32)
     x = np.stack([stitch_config(a, cfg) for a in adc])
     _, res = filter_and_detect(x, bank, cfg)
@@ -162,7 +162,7 @@ def switch_at_end_case():
     bank = Bank(rng.integers(S16_LO, S16_HI + 1, (4, 3)).astype(np.int16))
     frames = [rng.integers(S16_LO, S16_HI + 1, n).astype(np.int16)
               for n in (30, 30, 30, 25, 26, 10)]
-    return Case(bank, Config(out_shift=17, bin_offset=26, bin_len=2), frames,
+    return Case(bank, Config(out_shift=17, bin_offset=27, bin_len=2), frames,
                 [5, 6, 7, 1, 2, -1])
 
 
@@ -171,7 +171,7 @@ CASES = {
     "random_K3_L7": lambda: random_case(3, 7, seed=2, out_shift=17, bin_offset=65535 - 0,
                                         bin_len=65535),
     "random_K5_L2_binoffset25": lambda: random_case(5, 2, seed=3, out_shift=12,
-                                                    bin_offset=26, bin_len=2),
+                                                    bin_offset=27, bin_len=2),
     # K = 2 with a one-sample bin: the last template at the switch sample's bin end
     "random_K2_L5_binlen1": lambda: random_case(2, 5, seed=4, out_shift=16, bin_len=1),
     "rails_K1_L64_shift0": rails_case,
@@ -232,7 +232,7 @@ def test_verilator_output_buffer_full(tmp_path, on, off):
     """A sink that stops for longer than the pipeline: the output buffer fills (all
     ``LATENCY + 1`` admitted samples held), ``i.ready`` falls, and the buffer's pointers wrap
     many times, bypass and buffer taking turns."""
-    case = random_case(5, 2, seed=3, out_shift=12, bin_offset=26, bin_len=2)
+    case = random_case(5, 2, seed=3, out_shift=12, bin_offset=27, bin_len=2)
     res = run(Design(MatchedFilter), tmp_path,
               **traffic(case, PLAIN, Pattern("periodic", on=on, off=off)),
               label=f"matched_filter-full-{on}-{off}")
@@ -286,7 +286,7 @@ class TestAmaranthSim:
 
     def test_surface_tags_newer_wait_older_drop(self):
         bank = Bank(np.array([[3], [-5]], np.int16))
-        cfg = Config(out_shift=0, bin_offset=26, bin_len=1)
+        cfg = Config(out_shift=0, bin_offset=27, bin_len=1)
         rng = np.random.default_rng(5)
         frames = [rng.integers(-100, 100, 32).astype(np.int16) for _ in range(3)]
         # frame 1's message waits for frame 1; then frame 0's, now older, is dropped (frame 0
@@ -308,7 +308,7 @@ class TestAmaranthSim:
         model."""
         rng = np.random.default_rng(11)
         bank = Bank(rng.integers(-3000, 3000, (2, 4)).astype(np.int16))
-        cfg = Config(out_shift=4, bin_offset=26, bin_len=3)
+        cfg = Config(out_shift=4, bin_offset=27, bin_len=3)
         frames = [rng.integers(-500, 500, 40).astype(np.int16)]
         samples = replace(sample_source(frames, PLAIN), pattern=PLAIN)  # from clock 0
         res = simulate(MatchedFilter(), sources={
@@ -327,7 +327,7 @@ class TestAmaranthSim:
         # started is taken at once and lost, so frame 1 keeps template 0; the join never sends
         # one (tests/test_hdl_detect.py checks the join bit for bit)
         bank = Bank(np.array([[3], [-5]], np.int16))
-        cfg = Config(out_shift=0, bin_offset=26, bin_len=1)
+        cfg = Config(out_shift=0, bin_offset=27, bin_len=1)
         rng = np.random.default_rng(5)
         frames = [rng.integers(-100, 100, 32).astype(np.int16) for _ in range(2)]
         surface = Source(SURFACE, {"n": [2], "tag": [1]}, PLAIN)

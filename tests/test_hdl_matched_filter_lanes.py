@@ -159,7 +159,7 @@ def mixed_case(lanes: int, taps_max: int, seed: int) -> LaneCase:
     frames += random_frames(rng, [30, 2])
     surfaces += [4, 0]
     banks += [Bank(coefs[:1, :1])] * 2
-    cfg = Config(out_shift=9, bin_offset=26, bin_len=P + 1)
+    cfg = Config(out_shift=9, bin_offset=27, bin_len=P + 1)
     return LaneCase(big, cfg, frames, surfaces, banks=banks, junk=seed)
 
 
@@ -169,7 +169,7 @@ def rails_case(lanes: int, taps_max: int) -> LaneCase:
     bank = Bank(np.full((16, taps_max), S16_LO, np.int16))
     frames = [np.full(200, S16_LO, np.int16), np.full(100, S16_HI, np.int16),
               np.tile(np.array([S16_LO, S16_HI], np.int16), 80), np.zeros(5, np.int16)]
-    cfg = Config(out_shift=0, bin_offset=26, bin_len=lanes)
+    cfg = Config(out_shift=0, bin_offset=27, bin_len=lanes)
     return LaneCase(bank, cfg, frames, [10, -1, 1, 1], banks=[bank] * 4)
 
 
@@ -223,7 +223,7 @@ class TestAmaranthSim:
         rng = np.random.default_rng(lanes)
         bank = Bank(rng.integers(-3000, 3000, (2, taps_max)).astype(np.int16))
         frames = random_frames(rng, [40, 3], rails=0)
-        cfg = Config(out_shift=12, bin_offset=26, bin_len=lanes + 1)
+        cfg = Config(out_shift=12, bin_offset=27, bin_len=lanes + 1)
         case = LaneCase(bank, cfg, frames, [5, -1], banks=[bank] * 2)
         res = simulate(MatchedFilter(lanes=lanes, taps_max=taps_max, window_reg=window_reg),
                        **lane_traffic(case, lanes, taps_max))
@@ -238,7 +238,7 @@ class TestAmaranthSim:
         With ``window_reg`` the memories are read a clock later, and so are the writes."""
         rng = np.random.default_rng(12)
         bank = Bank(rng.integers(-3000, 3000, (2, 4)).astype(np.int16))
-        cfg = Config(out_shift=4, bin_offset=26, bin_len=3)
+        cfg = Config(out_shift=4, bin_offset=27, bin_len=3)
         frames = random_frames(rng, [40], rails=0)
         case = LaneCase(bank, cfg, frames, [30], banks=[bank])
         tr = lane_traffic(case, 2, 4)
@@ -251,16 +251,16 @@ class TestAmaranthSim:
         assert want[0] != 0 and got[:2].tolist() == [0, 0]
         assert np.array_equal(got[2:], want[2:])
 
-    @pytest.mark.parametrize("s, used", [(22, True), (21, False)])
+    @pytest.mark.parametrize("s, used", [(21, True), (20, False)])
     def test_surface_apply(self, s, used):
         """A surface given ahead is taken the clock after the frame's first beat and acts from
-        its fourth beat (SURFACE_APPLY_LANES = 2 edges): with 16 lanes and bin_offset 26, a
+        its fourth beat (SURFACE_APPLY_LANES = 2 edges): with 16 lanes and bin_offset 27, a
         switch at sample 48 (beat 3, lane 0) is made, one at sample 47 (beat 2, lane 15) is
         missed and the frame keeps template 0, as a late surface does."""
         rng = np.random.default_rng(3)
         bank = Bank(np.array([[3], [-5]], np.int16))
         frames = [rng.integers(-100, 100, 96).astype(np.int16)]
-        cfg = Config(out_shift=0, bin_offset=26, bin_len=16)
+        cfg = Config(out_shift=0, bin_offset=27, bin_len=16)
         case = LaneCase(bank, cfg, frames, [s], banks=[bank])
         res = simulate(unused(16, 1), **lane_traffic(case, 16, 1))
         check(per_sample(res, 16), case if used else
