@@ -156,9 +156,22 @@ def spawn(*args: str, timeout_s: float = 60.0, command: str = "emulate"):
     ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
     path = proc.stdout.readline().strip() if ready else ""
     if not path.startswith("/dev/"):
+        if ready and not path:  # stdout closed: the device is ending, let it say how
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                pass
+        alive = proc.poll() is None
         proc.kill()
-        _, err = proc.communicate()
-        raise RuntimeError(f"albcap {command} did not start: {err.strip()[-2000:] or path!r}")
+        out, err = proc.communicate()
+        # everything the device said, so that a start that fails once under load tells why
+        # (the first line, whether the device was still running, both streams' tails)
+        first = (f"its first line was {path!r}" if ready
+                 else f"it printed nothing on stdout within {timeout_s:g} s")
+        raise RuntimeError(
+            f"albcap {command} did not start: {first}, the process "
+            f"{'still running' if alive else f'ended with code {proc.returncode}'}; "
+            f"stderr: {err.strip()[-1500:]!r}; stdout after: {out.strip()[-500:]!r}")
     return proc, path
 
 

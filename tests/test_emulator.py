@@ -65,3 +65,13 @@ class TestInProcess:
                                         ([65534, 65535, 0, 2], 1)])
 def test_count_lost(shots, lost):
     assert count_lost(shots) == lost
+
+
+def test_spawn_that_fails_says_why():
+    """A device that exits before printing its pty path: the error names its first line, its
+    exit code and what it wrote to stderr (argparse's complaint about the option given)."""
+    with pytest.raises(RuntimeError) as e:
+        spawn("--no-such-option")
+    msg = str(e.value)
+    assert "albcap emulate did not start" in msg
+    assert "ended with code 2" in msg and "--no-such-option" in msg
