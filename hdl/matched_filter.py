@@ -966,7 +966,7 @@ class MatchedFilter(wiring.Component):
         for stage in tree_stages:
             m.d.sync += [a.eq(v) for a, v in stage]
         acc = _tree_halves(m, level, len(tree_stages))
-        # ---- stages 13, 14: the shift (in two parts) and the saturation compares, stage 15:
+        # ---- stages 14, 15: the shift (in two parts) and the saturation compares, stage 16:
         # round half up and saturate (see _round_saturate) ----
         sh = _out_shift(m, cfg)
         over_at, under_at = _saturation_bounds(m, sh, len(acc))

@@ -17,7 +17,7 @@ from model.detect import (
 )
 from model.matched_filter import Bank, matched_filter, template_index
 from model.peak_detect import peak_detect
-from model.registers import Config
+from model.registers import Config, by_name
 
 SETTINGS = settings(derandomize=True, deadline=None, max_examples=30)
 
@@ -35,7 +35,8 @@ def echo_case(seed, B=6, N=None, K=None, L=None):
         for _ in range(int(rng.integers(0, 4))):
             p = int(rng.integers(0, N))
             x[f, p:p + 3] += int(rng.integers(100, 3000))
-    cfg = Config(out_shift=int(rng.integers(8, 20)), bin_offset=int(rng.integers(27, 80)),
+    floor = by_name("bin_offset").lo
+    cfg = Config(out_shift=int(rng.integers(8, 20)), bin_offset=int(rng.integers(floor, 80)),
                  bin_len=int(rng.integers(1, 40)), noise_log2=int(rng.integers(2, 6)),
                  k_thr_q4=int(rng.integers(0, 200)), min_thr=int(rng.integers(0, 50)),
                  min_sep=int(rng.integers(1, 30)), bottom_rule=int(rng.integers(0, 3)))

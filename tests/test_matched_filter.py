@@ -23,7 +23,9 @@ from model.matched_filter import (
     matched_filter_reference,
     template_index,
 )
-from model.registers import Config
+from model.registers import Config, by_name
+
+FLOOR = by_name("bin_offset").lo  # the register's floor, samples
 
 SETTINGS = settings(derandomize=True, deadline=None, max_examples=40)
 LO, HI = int_range(OUT_WIDTH, signed=True)
@@ -38,7 +40,7 @@ def random_case(seed, K=None, L=None, N=None, B=3, full_range=False):
     coefs = rng.integers(-32768, 32768, (K, L)).astype(np.int16)
     x = rng.integers(-amp, amp, (B, N)).astype(np.int16)
     surface = rng.integers(-1, max(N, 1), B) if N else np.full(B, -1)
-    cfg = Config(out_shift=int(rng.integers(0, 32)), bin_offset=int(rng.integers(27, 90)),
+    cfg = Config(out_shift=int(rng.integers(0, 32)), bin_offset=int(rng.integers(FLOOR, 90)),
                  bin_len=int(rng.integers(1, 40)))
     return x, Bank(coefs), cfg, surface
 
@@ -112,7 +114,7 @@ class TestTemplateIndex:
     def test_matches_the_spec_formula(self, seed):
         rng = np.random.default_rng(seed)
         N, K = int(rng.integers(1, 200)), int(rng.integers(1, 17))
-        cfg = Config(bin_offset=int(rng.integers(27, 60)), bin_len=int(rng.integers(1, 30)))
+        cfg = Config(bin_offset=int(rng.integers(FLOOR, 60)), bin_len=int(rng.integers(1, 30)))
         s = rng.integers(-1, N, 4)
         k = template_index(N, s, K, cfg)
         assert k.shape == (4, N) and k.dtype == np.uint8
@@ -127,7 +129,7 @@ class TestTemplateIndex:
         cfg = Config(bin_offset=27, bin_len=3)
         s = 5 + offset
         k = template_index(60, np.array([s]), 4, cfg)[0]
-        start = s + 27
+        start = s + cfg.bin_offset
         assert k[:start].tolist() == [0] * start
         assert k[start:start + 7].tolist() == [1, 1, 1, 2, 2, 2, 3]
         assert set(k[start + 6:].tolist()) == {3}
