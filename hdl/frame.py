@@ -194,13 +194,6 @@ class FramePacketizer(wiring.Component):
         # thirty-sixth session.)
         buf = m.submodules.buf = BlockRAM(_KEPT, self.max_samples)
         raddr = Signal(range(self.max_samples))  # the next word to read (wraps; see LINK_HEADER)
-        # `raddr + 1`, counted beside it (with the same wrap), so that `raddr` loads a register
-        # and its carry chain is `rnext`'s own: counting itself, `raddr` was a loop through its
-        # chain whose flip-flops the placer put by the buffer's blocks, its fan-out, and the
-        # loop was the one-lane pipeline's worst path on two placements of twelve (3.4-3.6 ns
-        # of routing) and missed 200 MHz on six (sixtieth session). Restarted together in
-        # DECIDE, a synchronous reset that the flip-flops' own LSR takes.
-        rnext = Signal.like(raddr, init=1)
         j_last = Signal()  # SAMPLES, j == ibytes - 1: the next word is loaded
         adv, word_en = Signal(), Signal()
         m.d.sync += [j_last.eq(0), adv.eq(0), word_en.eq(0)]  # unless set below
@@ -273,6 +266,8 @@ class FramePacketizer(wiring.Component):
         # from the packet's link header on, many clocks after the last write.
         m.d.sync += [buf.w_addr.eq(n), buf.w_data.eq(item),
                      buf.w_en.eq(take & ~peaks_q & room_n)]
+        with m.If(adv):
+            m.d.sync += raddr.eq(raddr + 1)
 
         # ---- the finished frame: flags, length, sizes ----
         found_s = res.surface.kind != 0
@@ -421,28 +416,16 @@ class FramePacketizer(wiring.Component):
         #   count one down.
         ld_hdr, ld_items, dec = Signal(), Signal(), Signal()
         m.d.sync += [ld_hdr.eq(0), ld_items.eq(0), dec.eq(0)]  # unless set below
-        # `left`'s load, either of the two, and the value it loads, registered with the flags
-        # (`ld_val` loads `left_hdr` at every clock of LINK_HEADER, `left_items` at every clock
-        # of FRAME_HEADER, the states that set `ld_hdr` and `ld_items`): each bit of `left`
-        # is then one LUT of `ld`, `ld_val` and the count-down's chain. Chosen between
-        # `left_hdr` and `left_items` by the two flags, it was the chain and two LUTs, and
-        # `left` -> `left` was the one-lane pipeline's worst path on a placement of twelve
-        # (3.4 ns of routing, sixtieth session).
-        ld, ld_val = Signal(), Signal.like(left)
-        m.d.sync += ld.eq(0)  # unless set below, with `ld_hdr` or `ld_items`
-        with m.If(ld):
-            m.d.sync += left.eq(ld_val)
-        with m.Elif(dec):
-            m.d.sync += left.eq(left - 1)
         with m.If(ld_hdr):
-            m.d.sync += [a.eq(f) for a, f in zip(at, at_hdr, strict=True)]
+            m.d.sync += [left.eq(left_hdr), *(a.eq(f) for a, f in zip(at, at_hdr, strict=True))]
         with m.Elif(ld_items):
-            m.d.sync += [a.eq(f) for a, f in zip(at, at_items, strict=True)]
+            m.d.sync += [left.eq(left_items),
+                         *(a.eq(f) for a, f in zip(at, at_items, strict=True))]
         with m.Elif(dec):
             # `left` is 1 or more at a count (the last item's makes it 0, and CRC follows),
             # so `left == 4` is "4 or less and none of 1, 2, 3": a carry chain's sign and a
             # LUT, where the 17-bit equality was three levels before the choice
-            m.d.sync += [at[0].eq(at[1]), at[1].eq(at[2]),
+            m.d.sync += [left.eq(left - 1), at[0].eq(at[1]), at[1].eq(at[2]),
                          at[2].eq(_le(left, 4) & ~at[0] & ~at[1] & ~at[2])]
 
         j = Signal(range(_WORD // 8))  # byte within the current sample item
@@ -547,6 +530,7 @@ class FramePacketizer(wiring.Component):
                     pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
                                Const(PacketType.FRAME, 8), seq, body)),
                     pos.eq(1),
+                    raddr.eq(0),
                     *advance(1, False),
                     seq.eq(seq + 1),
                     self.frames_sent.eq(self.frames_sent + 1),
@@ -567,8 +551,7 @@ class FramePacketizer(wiring.Component):
             m.d.sync += advance(pos[0], False)
             # the frame header's count (plus the records of a peaks frame) loads at the last
             # byte, so `ld_hdr` is set at the one before; the frame header's first byte counts
-            m.d.sync += [ld_hdr.eq(pos[PACKET_HEADER.size - 2]), ld_val.eq(left_hdr),
-                         ld.eq(pos[PACKET_HEADER.size - 2]),
+            m.d.sync += [ld_hdr.eq(pos[PACKET_HEADER.size - 2]),
                          dec.eq(pos[PACKET_HEADER.size - 1])]
             with m.If(pos[PACKET_HEADER.size - 1]):
                 fsm.next("FRAME_HEADER")
@@ -579,8 +562,7 @@ class FramePacketizer(wiring.Component):
             # count, the others count down (`left` starts at _HDR or more, so the first
             # byte, whose update the link header set, is never the last)
             m.d.sync += [sh.eq(sh >> 8), *advance(at[1], True),
-                         ld_items.eq(at[1]), ld.eq(at[1]), ld_val.eq(left_items),
-                         dec.eq(~at[0] & ~at[1])]
+                         ld_items.eq(at[1]), dec.eq(~at[0] & ~at[1])]
             with m.If(at[0]):
                 # the buffer's word 0 has been on its output since LINK_HEADER (`adv` is
                 # high at this clock, set with the byte before)
@@ -616,16 +598,6 @@ class FramePacketizer(wiring.Component):
                 m.d.sync += hdr_rdy.eq(1)
                 fsm.next("HEADER")
         fsm.close()
-        # The read address restarts at a packet's DECIDE (`adv` is low there: it is set only
-        # in LINK_HEADER, FRAME_HEADER and SAMPLES, for the clock after), written first and
-        # outside the enable so that Yosys makes it the flip-flops' own reset over their
-        # enable (LSR = DECIDE & `send`, one LUT of two registers; design rule 10). Inside
-        # the state, as the other updates of DECIDE, it was a LUT in front of each bit's
-        # data (`send` -> two LUTs -> `raddr`).
-        with m.If(fsm.ongoing("DECIDE") & send):
-            m.d.sync += [raddr.eq(0), rnext.eq(1)]
-        with m.Elif(adv):
-            m.d.sync += [raddr.eq(rnext), rnext.eq(rnext + 1)]
         with m.If(word_en):
             m.d.sync += item.eq(Cat(buf.r_data, buf.r_data[-1].replicate(8)))
 

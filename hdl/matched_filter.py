@@ -971,17 +971,11 @@ class MatchedFilter(wiring.Component):
         sh = _out_shift(m, cfg)
         over_at, under_at = _saturation_bounds(m, sh, len(acc))
 
-        # The first stage's template is `k` itself, read a clock later: `k` loads `k_sel` at
-        # the same accepted sample, and a stage's template is read only where it is valid (the
-        # output buffer writes valid beats alone). A register of its own loaded with `k_sel`,
-        # `sb1` was three LUTs from the port's payload (`first` -> `match`'s choice -> the
-        # template's), and missed 200 MHz on four of twelve placements of the pipeline
-        # (sixtieth session); `sb2` from `k` is a register from a register.
         m.d.sync += [
-            sb[0].valid.eq(accept), sb[0].first.eq(d.first), sb[0].last.eq(d.last),
+            sb[0].valid.eq(accept), sb[0].k.eq(k_sel),
+            sb[0].first.eq(d.first), sb[0].last.eq(d.last),
         ]
         m.d.sync += [sb[i].eq(sb[i - 1]) for i in range(1, LATENCY)]
-        m.d.sync += sb[1].k.eq(k)
         pipe = Signal(FILTER_OUT)  # the pipeline's last stage
         last_sb = sb[LATENCY - 1]
         _round_saturate(m, acc, sh, over_at, under_at, pipe.y, split=True,
