@@ -266,6 +266,8 @@ class FramePacketizer(wiring.Component):
         # from the packet's link header on, many clocks after the last write.
         m.d.sync += [buf.w_addr.eq(n), buf.w_data.eq(item),
                      buf.w_en.eq(take & ~peaks_q & room_n)]
+        with m.If(adv):
+            m.d.sync += raddr.eq(raddr + 1)
 
         # ---- the finished frame: flags, length, sizes ----
         found_s = res.surface.kind != 0
@@ -528,6 +530,7 @@ class FramePacketizer(wiring.Component):
                     pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
                                Const(PacketType.FRAME, 8), seq, body)),
                     pos.eq(1),
+                    raddr.eq(0),
                     *advance(1, False),
                     seq.eq(seq + 1),
                     self.frames_sent.eq(self.frames_sent + 1),
@@ -595,17 +598,6 @@ class FramePacketizer(wiring.Component):
                 m.d.sync += hdr_rdy.eq(1)
                 fsm.next("HEADER")
         fsm.close()
-        # The read address restarts at a packet's DECIDE (`adv` is low there: it is set only
-        # in LINK_HEADER, FRAME_HEADER and SAMPLES, for the clock after), written first and
-        # outside the enable, so that Yosys makes it the flip-flops' own reset over their
-        # enable (LSR = DECIDE and `send`, one LUT of two registers; design rule 10) and each
-        # bit's data is its carry chain's sum. Inside the state, with DECIDE's other updates,
-        # it was two LUTs after `send` in front of each bit, and `raddr` -> `raddr` missed
-        # 200 MHz on six of twelve placements of the one-lane pipeline (sixtieth session).
-        with m.If(fsm.ongoing("DECIDE") & send):
-            m.d.sync += raddr.eq(0)
-        with m.Elif(adv):
-            m.d.sync += raddr.eq(raddr + 1)
         with m.If(word_en):
             m.d.sync += item.eq(Cat(buf.r_data, buf.r_data[-1].replicate(8)))
 
