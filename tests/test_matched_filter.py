@@ -126,7 +126,7 @@ class TestTemplateIndex:
 
     @pytest.mark.parametrize("offset", range(0, 7))
     def test_bin_boundaries_at_every_offset(self, offset):
-        cfg = Config(bin_offset=27, bin_len=3)
+        cfg = Config(bin_offset=FLOOR, bin_len=3)
         s = 5 + offset
         k = template_index(60, np.array([s]), 4, cfg)[0]
         start = s + cfg.bin_offset
