@@ -76,10 +76,6 @@ class BlockRAM(Elaboratable):
     max_banks : int, optional
         At most this many banks of blocks on the ECP5 (:func:`_tiling`; default: whatever
         takes the fewest blocks).
-    read_counter : bool
-        The read address is a counter of the memory's own, moved by ``r_restart`` and
-        ``r_step``, rather than an input (default False). On the ECP5 it is kept once per
-        block, each copy beside its block.
 
     Attributes
     ----------
@@ -89,15 +85,8 @@ class BlockRAM(Elaboratable):
         Word to write.
     w_en : Signal(1), in
         Write ``w_data`` at ``w_addr`` at this clock.
-    r_addr : Signal(range(depth)), in (out with ``read_counter``)
-        Read address, taken by the address register when ``r_en`` is high. With
-        ``read_counter`` it is the counter (a register, 0 after reset): read it, do not
-        drive it.
-    r_restart : Signal(1), in
-        With ``read_counter``: the counter is 0 after this clock's edge (before ``r_step``).
-    r_step : Signal(1), in
-        With ``read_counter``: the counter is one more after this clock's edge (modulo
-        ``2 ** len(r_addr)``), unless ``r_restart``.
+    r_addr : Signal(range(depth)), in
+        Read address, taken by the address register when ``r_en`` is high.
     r_en : Signal(1), in
         Enable of the first read stage: the word at ``r_addr`` is read at this clock edge and
         held (the ``DP16KD``'s ``CEB``); with ``r_en`` low the first stage keeps its word.
@@ -118,19 +107,13 @@ class BlockRAM(Elaboratable):
     hold it). Registers are not reset.
     """
 
-    def __init__(self, width: int, depth: int, max_banks: int | None = None,
-                 read_counter: bool = False):
+    def __init__(self, width: int, depth: int, max_banks: int | None = None):
         checked = (("width", width), ("depth", depth), ("max_banks", max_banks))
         for name, v in checked[:2] if max_banks is None else checked:
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, not {v!r}")
         _tiling(width, depth, max_banks)  # a shape it cannot tile fails here, not later
-        if not isinstance(read_counter, bool):
-            raise ValueError(f"read_counter must be True or False, not {read_counter!r}")
         self.width, self.depth, self.max_banks = width, depth, max_banks
-        self.read_counter = read_counter
-        self.r_restart = Signal()
-        self.r_step = Signal()
         self.w_addr = Signal(range(depth))
         self.w_data = Signal(width)
         self.w_en = Signal()
@@ -143,8 +126,6 @@ class BlockRAM(Elaboratable):
         if getattr(platform, "family", None) == "ecp5" and self.depth > _LUTRAM_MAX:
             return self._ecp5()
         m = Module()
-        if self.read_counter:
-            self._count(m, self.r_addr)
         # Non-transparent: a read of the address written at the same clock gets the old word,
         # one of the values the block may give (undefined there); callers avoid the case.
         mem = m.submodules.mem = memory.Memory(shape=self.width, depth=self.depth, init=[],
@@ -158,34 +139,12 @@ class BlockRAM(Elaboratable):
             m.d.sync += out.eq(rp.data)
         return m
 
-    def _count(self, m: Module, addr: Signal) -> None:
-        """``addr`` as the read counter: 0 after a restart, else one more after a step."""
-        with m.If(self.r_restart):
-            m.d.sync += addr.eq(0)
-        with m.Elif(self.r_step):
-            m.d.sync += addr.eq(addr + 1)
-
     def _ecp5(self):
         m = Module()
         bw, bd, cols, banks = _tiling(self.width, self.depth, self.max_banks)
-        # The read counter once per block, `r_addr` the first copy: the blocks of one memory
-        # sit apart on the die (the packetizer's six over 36 columns and two rows), and one
-        # register driving all their address pins was pulled between them, away from its own
-        # increment (its loop missed 200 MHz on six of twelve placements of the one-lane
-        # pipeline, 3.4-3.6 ns of route, sixtieth session). Each copy counts on its own from
-        # the two shared controls, so its loop stays by its block; the copies are
-        # registers of distinct logic, which synthesis does not merge.
-        copies = {}
-        if self.read_counter:
-            for b in range(banks):
-                for c in range(cols):
-                    copy = (self.r_addr if (b, c) == (0, 0)
-                            else Signal.like(self.r_addr, name=f"r_addr{b}_{c}"))
-                    self._count(m, copy)
-                    copies[b, c] = copy
         shift = (16384 // bd).bit_length() - 1  # word address -> bit address
         lo = (bd - 1).bit_length()  # word address bits within a block
-        w_bank, r_bank = self.w_addr[lo:], self.r_addr[lo:]  # (copy 0's, with a counter)
+        w_bank, r_bank = self.w_addr[lo:], self.r_addr[lo:]
         # The bank a read came from, through both stages: it picks the block whose output
         # register holds the word, after those registers.
         bank1 = Signal(range(banks), reset_less=True)
@@ -207,8 +166,7 @@ class BlockRAM(Elaboratable):
                          "i_OCEB": self.r_oce, "i_WEB": 0, "i_RSTB": 0}
                 wa = Signal(14, name=f"wa{b}_{c}")
                 ra = Signal(14, name=f"ra{b}_{c}")
-                r_addr = copies.get((b, c), self.r_addr)
-                m.d.comb += [wa.eq(self.w_addr[:lo] << shift), ra.eq(r_addr[:lo] << shift)]
+                m.d.comb += [wa.eq(self.w_addr[:lo] << shift), ra.eq(self.r_addr[:lo] << shift)]
                 if bw == 18:
                     m.d.comb += wa[:2].eq(0b11)  # the two byte enables of an 18-bit write
                 for i in range(3):

@@ -192,9 +192,8 @@ class FramePacketizer(wiring.Component):
         # loaded). `word_en`, the word's enable, is set with it in the last two. (As an OR of
         # a flag per state, two LUTs, `adv` was the pipeline's worst path on seed 2, 6.07 ns,
         # thirty-sixth session.)
-        # The read address is the buffer's own counter (`buf.r_addr`, the next word to read;
-        # it wraps, see LINK_HEADER), kept by the blocks: restarted at DECIDE, stepped by `adv`.
-        buf = m.submodules.buf = BlockRAM(_KEPT, self.max_samples, read_counter=True)
+        buf = m.submodules.buf = BlockRAM(_KEPT, self.max_samples)
+        raddr = Signal(range(self.max_samples))  # the next word to read (wraps; see LINK_HEADER)
         j_last = Signal()  # SAMPLES, j == ibytes - 1: the next word is loaded
         adv, word_en = Signal(), Signal()
         m.d.sync += [j_last.eq(0), adv.eq(0), word_en.eq(0)]  # unless set below
@@ -261,12 +260,14 @@ class FramePacketizer(wiring.Component):
             m.d.comb += item.eq(beat.y)  # its sign byte is rebuilt when sent
         take = Signal()
         m.d.comb += [take.eq(self.i.valid & col_rdy),
-                     buf.r_step.eq(adv), buf.r_en.eq(adv), buf.r_oce.eq(adv)]
+                     buf.r_addr.eq(raddr), buf.r_en.eq(adv), buf.r_oce.eq(adv)]
         # The write registered: the blocks are far from the logic (3 ns of routing into them),
         # and the item's frame-type choice came before that (8.9 ns). The buffer is read only
         # from the packet's link header on, many clocks after the last write.
         m.d.sync += [buf.w_addr.eq(n), buf.w_data.eq(item),
                      buf.w_en.eq(take & ~peaks_q & room_n)]
+        with m.If(adv):
+            m.d.sync += raddr.eq(raddr + 1)
 
         # ---- the finished frame: flags, length, sizes ----
         found_s = res.surface.kind != 0
@@ -525,11 +526,11 @@ class FramePacketizer(wiring.Component):
             # of it routing).
             m.d.sync += sh.eq(Cat(fin, res.surface, res.bottom))
             with m.If(send):
-                m.d.comb += buf.r_restart.eq(1)  # the packet's word 0 is read first
                 m.d.sync += [
                     pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
                                Const(PacketType.FRAME, 8), seq, body)),
                     pos.eq(1),
+                    raddr.eq(0),
                     *advance(1, False),
                     seq.eq(seq + 1),
                     self.frames_sent.eq(self.frames_sent + 1),

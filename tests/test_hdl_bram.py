@@ -71,45 +71,6 @@ def test_bad_parameters(kwargs):
         BlockRAM(**kwargs)
 
 
-def test_bad_read_counter():
-    with pytest.raises(ValueError, match="^read_counter must be True or False, not 1$"):
-        BlockRAM(4, 4, read_counter=1)
-
-
-# ---------------------------------------------------------------------------------------------
-# The read counter in Amaranth's simulator
-
-
-@pytest.mark.parametrize("depth", [4096, 768, 2])
-def test_read_counter(depth):
-    """The plain counter against a Python one: restart first, then step, modulo
-    ``2 ** len(r_addr)`` (a caller reads no further than the words it wrote; 768 words wrap
-    at 1 024, as a register of their range did). Ends, wrap and a restart with a step."""
-    dut = BlockRAM(8, depth, read_counter=True)
-    width = len(dut.r_addr)
-    rng = random.Random(depth)
-    seen = set()
-
-    async def bench(ctx):
-        addr = 0
-        calm = (1 << width) * 5 // 4  # no restart before: every value, and the wrap
-        for clock in range(calm + 300):
-            assert ctx.get(dut.r_addr) == addr, f"clock {clock}"
-            seen.add(addr)
-            restart = clock >= calm and rng.random() < 0.2
-            step = rng.random() < 0.9
-            ctx.set(dut.r_restart, restart)
-            ctx.set(dut.r_step, step)
-            addr = 0 if restart else (addr + step) % (1 << width)
-            await ctx.tick()
-
-    sim = Simulator(dut)
-    sim.add_clock(1e-6)
-    sim.add_testbench(bench)
-    sim.run()
-    assert {0, (1 << width) - 1} <= seen
-
-
 # ---------------------------------------------------------------------------------------------
 # The store in Amaranth's simulator
 
@@ -312,33 +273,6 @@ class BramTwin(wiring.Component):
         return m
 
 
-class CountedTwin(wiring.Component):
-    """Two block RAMs of one shape with read counters (``read_counter``), on the same inputs:
-    ``hw`` elaborated for the ECP5, a copy of the counter per block."""
-
-    def __init__(self, width, depth, max_banks=None):
-        self.width, self.depth, self.max_banks = width, depth, max_banks
-        super().__init__({"w_addr": In(range(depth)), "w_data": In(width), "w_en": In(1),
-                          "r_restart": In(1), "r_step": In(1), "r_en": In(1), "r_oce": In(1),
-                          "hw_data": Out(width), "plain_data": Out(width),
-                          "hw_addr": Out(range(depth)), "plain_addr": Out(range(depth))})
-
-    def elaborate(self, platform):
-        m = Module()
-        hw = BlockRAM(self.width, self.depth, self.max_banks, read_counter=True)
-        plain = BlockRAM(self.width, self.depth, self.max_banks, read_counter=True)
-        m.submodules.hw = AsEcp5(hw)
-        m.submodules.plain = plain
-        for ram in (hw, plain):
-            m.d.comb += [ram.w_addr.eq(self.w_addr), ram.w_data.eq(self.w_data),
-                         ram.w_en.eq(self.w_en), ram.r_restart.eq(self.r_restart),
-                         ram.r_step.eq(self.r_step), ram.r_en.eq(self.r_en),
-                         ram.r_oce.eq(self.r_oce)]
-        m.d.comb += [self.hw_data.eq(hw.r_data), self.plain_data.eq(plain.r_data),
-                     self.hw_addr.eq(hw.r_addr), self.plain_addr.eq(plain.r_addr)]
-        return m
-
-
 class _TwinDesign(Design):
     def verilog(self):
         return to_verilog(self.component(**dict(self.params)), self.name) + DP16KD_MODEL
@@ -353,15 +287,3 @@ def test_ecp5_against_plain(tmp_path, width, depth, max_banks):
     block = _tiling(width, depth, max_banks)[1]
     run_cocotb_module(design, tmp_path, "cocotb_bram",
                       {"ALBCAP_BRAM": f"{width},{depth},{block},4000,{width * depth}"})
-
-
-@pytest.mark.parametrize("width, depth, max_banks", [
-    (24, 4096, None), (9, 32768, 2), (42, 4096, None)])
-def test_ecp5_counted_against_plain(tmp_path, width, depth, max_banks):
-    """The read counter kept once per block (the packetizer's buffer: six blocks, one bank; a
-    FIFO's shape in two banks; the gate's store's in five columns of two banks): every copy
-    must address its block as the plain counter does, or that block's bits differ."""
-    design = _TwinDesign(CountedTwin, width=width, depth=depth,
-                         **({"max_banks": max_banks} if max_banks else {}))
-    run_cocotb_module(design, tmp_path, "cocotb_bram_counted",
-                      {"ALBCAP_BRAM": f"{width},{depth},4000,{width + depth}"})
