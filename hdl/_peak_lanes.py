@@ -385,7 +385,7 @@ def elaborate(top, platform):
         # LUTs, the 3 x 3 interleaved build's worst path (8.34 ns). And go's own loop (go ->
         # D1 free, and busy after -> go) is one LUT: the decision is worked out for D1's beat
         # going now (D1 takes H's; busy after if it was a last) and for it staying (D1 takes
-        # H's only if it is empty), and go picks (within each choice of busy, below).
+        # H's only if it is empty), and go picks.
         busy = Signal()
         tag_eq = Signal(name="tag_eq")  # thr_tag == d1_tag (below: == last_tag)
         stays = Signal(name="busy_stays")  # busy after this clock, if D1's beat stays
@@ -401,16 +401,9 @@ def elaborate(top, platform):
         def kept(busy_next: bool):  # D1's own beat, or H's if D1 is empty
             return Mux(~d1_valid, taken(busy_next), may_go(h1, False, busy_next))
 
-        # The two decisions, for busy after this clock and for not, are made from registers
-        # alone (kept wires: ABC would fold `stays` into them) and `stays` chooses last, so
-        # that the consumer's ready, a register of the next stage and often far (the
-        # packetizer's `res_rdy` -> `go`, 4.07 ns of route, seed 6 of the sixtieth session's
-        # recorded pipeline), is one LUT from `go`. Same function: busy after and D1's beat
-        # going is `stays | d1.last`; busy after and staying is `stays`.
-        go_busy = _cut(m, Mux(go, taken(True), kept(True)), "go_busy")
-        go_free = _cut(m, Mux(go, Mux(d1.last, taken(True), taken(False)), kept(False)),
-                       "go_free")
-        m.d.sync += go.eq(Mux(stays, go_busy, go_free))
+        if_goes = Mux(d1.last | stays, taken(True), taken(False))
+        if_stays = Mux(stays, kept(True), kept(False))
+        m.d.sync += go.eq(Mux(go, if_goes, if_stays))
 
         st_beat, st_base, st_tag, st_valid = d1, d1_base, d1_tag, fresh
     else:
