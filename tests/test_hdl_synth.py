@@ -294,6 +294,62 @@ def test_record_figures_merges_per_configuration(tmp_path):
     assert got["a"]["fmax_mhz"] == 100.0 and got["a[lanes=4,taps_max=32]"]["fmax_mhz"] == 90.0
     with pytest.raises(ValueError, match="holds figures for"):
         record_figures(path, {"device": {**dev, "part": "LFE5U-25F"}, "components": {}})
+    # a redraw (the shell's chains reordered) is a null measurement: refused, nothing written
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match=r"\['a'\] placed with the shell's chains redrawn "
+                                         r"\(redraw=2\).*not a figure to record"):
+        record_figures(path, {"device": dev, "components": {
+            "a": {**fig, "params": {}, "context": "in", "redraw": 2}}})
+    assert path.read_bytes() == before
+
+
+def test_shell_redraw_reorders_its_chains():
+    """``redraw``: bit 0 the input chain's ports in reverse order, bit 1 the static chain's;
+    the core's ports take the bits shifted in, in that order, and nothing else changes."""
+    from amaranth.sim import Simulator
+
+    from hdl.stitch import Stitch
+    from hdl.synth import PortShell
+
+    rng = __import__("random").Random(7)
+    for redraw in PortShell.REDRAWS:
+        shell = PortShell(Stitch(), static="registers", redraw=redraw)
+        static = [v for _, v in shell._pinned]
+        chains = [(shell.din, shell._ins[::-1] if redraw & 1 else shell._ins),
+                  (shell.cfg_din, static[::-1] if redraw & 2 else static)]
+        want = [[rng.randrange(2) for _ in range(sum(len(v) for v in ports))]
+                for _, ports in chains]
+        sim = Simulator(shell)
+        sim.add_clock(1e-8)
+
+        async def bench(ctx, chains=chains, want=want, redraw=redraw):
+            for k in reversed(range(max(len(w) for w in want))):
+                for (pin, _), w in zip(chains, want, strict=True):
+                    ctx.set(pin, w[k] if k < len(w) else 0)
+                await ctx.tick()
+            for (_, ports), w in zip(chains, want, strict=True):
+                got = []
+                for port in ports:
+                    v = ctx.get(port)
+                    got += [(v >> i) & 1 for i in range(len(port))]
+                assert got == w, redraw
+
+        sim.add_testbench(bench)
+        sim.run()
+    for bad in (4, -1, True, "1"):
+        with pytest.raises(ValueError, match=r"redraw must be one of \(0, 1, 2, 3\), not "):
+            PortShell(Stitch(), redraw=bad)
+    with pytest.raises(ValueError, match=r"redraw=1 orders the shell's chains: in context"):
+        synthesize("albcap_stitch", redraw=1)
+
+
+def test_cli_refuses_to_record_a_redraw(tmp_path, capsys):
+    out = tmp_path / "fpga.json"
+    for extra, msg in ((["--context", "in", "--out", str(out)], "not a figure to record"),
+                       ([], "give --context in")):
+        with pytest.raises(SystemExit, match=msg):
+            main(["hdl", "synth", "--component", "albcap_stitch", "--redraw", "1", *extra])
+    assert not out.exists()
 
 
 
