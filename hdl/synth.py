@@ -126,13 +126,14 @@ class PortShell(Elaboratable):
         from amaranth.hdl import ClockDomain, Value
         from amaranth.lib.wiring import Flow
 
-        if static not in self.STATIC_SOURCES:
+        refused = (f"static must be one of {self.STATIC_SOURCES}, not {static!r}"
+                   if static not in self.STATIC_SOURCES else
+                   f"redraw must be one of {self.REDRAWS}, not {redraw!r}"
+                   if isinstance(redraw, bool) or redraw not in self.REDRAWS else None)
+        if refused:
             # refused, so never meant to be elaborated: keep Amaranth from warning of it
             self._MustUse__silence = core._MustUse__silence = True
-            raise ValueError(f"static must be one of {self.STATIC_SOURCES}, not {static!r}")
-        if isinstance(redraw, bool) or redraw not in self.REDRAWS:
-            self._MustUse__silence = core._MustUse__silence = True
-            raise ValueError(f"redraw must be one of {self.REDRAWS}, not {redraw!r}")
+            raise ValueError(refused)
         self.redraw = redraw
         self.core = core
         self.static_source = static
