@@ -114,7 +114,7 @@ def _synth(args) -> int:
                          f"spread, not a figure to record: leave out --out")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
                     args.placer, args.seed, args.static, args.floorplan, args.jobs,
-                    args.remap, args.redraw)
+                    args.remap, args.redraw, args.mapping)
     if args.out is not None:
         from .synth import record_figures
 
@@ -135,7 +135,7 @@ def _levels(args) -> int:
     params = _params(args)
     if args.path:
         steps = levels(args.component, params or None, args.context, args.static,
-                       path=args.path, remap=args.remap)
+                       path=args.path, remap=args.remap, mapping=args.mapping)
         if args.json:
             print(json.dumps(steps, indent=1))
             return 0
@@ -143,7 +143,7 @@ def _levels(args) -> int:
             print(f"{st['levels']:3d}  {st['type']:<16} {st['net'] or st['cell']}")
         return 0
     found = levels(args.component, params or None, args.context, args.static, args.match,
-                   remap=args.remap)
+                   remap=args.remap, mapping=args.mapping)
     if args.by_module is not None:
         table = depth_by_module(found, args.by_module)
         if args.json:
@@ -231,6 +231,12 @@ def register(subparsers) -> None:
                   "(hdl/_remap.py; 0: Yosys's netlist as it is)")
     syn.add_argument("--remap", type=_remap_inputs, default=REMAP_INPUTS, metavar="K",
                      help=remap_help + "; the result is proven equal to Yosys's netlist")
+    from .synth import MAPPINGS
+
+    mapping_help = ("how ABC maps the logic into LUTs: critical (Yosys's synth_ecp5, for delay "
+                    "up to the critical arrival, area below it: every recorded figure) or "
+                    "average (&if -t: the outputs' average level minimised)")
+    syn.add_argument("--mapping", choices=MAPPINGS, default="critical", help=mapping_help)
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")
@@ -261,5 +267,6 @@ def register(subparsers) -> None:
                           "clock")
     lev.add_argument("--remap", type=_remap_inputs, default=REMAP_INPUTS, metavar="K",
                      help=remap_help + " (the netlist placed; not proven here)")
+    lev.add_argument("--mapping", choices=MAPPINGS, default="critical", help=mapping_help)
     lev.add_argument("--json", action="store_true", help="print every register as JSON")
     lev.set_defaults(func=_levels)

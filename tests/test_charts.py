@@ -87,6 +87,14 @@ def test_the_fpga_table_names_each_build_and_how_it_was_placed():
                        "| 10773 | 8004 | 2 | 0 | - |")
 
 
+def test_the_fpga_table_says_when_abc_mapped_otherwise():
+    from model.charts import _fpga_table
+
+    key = "albcap_peak_detect[lanes=8]"
+    fpga = {**FPGA, "figures": {key: {**FPGA["figures"][key], "mapping": "average"}}}
+    assert "| heap, router1, ABC average | 96.5 |" in _fpga_table(fpga)
+
+
 def test_the_fpga_page_shows_the_recorded_figures():
     """``docs/fpga.md``'s table is the one ``albcap chart`` makes of ``docs/figures/fpga.json``:
     a figure recorded without the page regenerated fails here."""

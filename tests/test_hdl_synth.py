@@ -7,6 +7,8 @@ import pytest
 from firmware_host.cli import main
 from hdl.synth import (
     DEVICE,
+    MAPPINGS,
+    _yosys_script,
     failing_endpoints,
     figure_key,
     missing_by_depth,
@@ -351,6 +353,36 @@ def test_cli_refuses_to_record_a_redraw(tmp_path, capsys):
             main(["hdl", "synth", "--component", "albcap_stitch", "--redraw", "1", *extra])
     assert not out.exists()
 
+
+
+def test_the_critical_mapping_is_synth_ecp5_as_it_is():
+    """Every recorded figure's netlist: Yosys's own script, nothing in between."""
+    assert MAPPINGS[0] == "critical"
+    assert _yosys_script("albcap_stitch", "n.json") == (
+        "read_verilog albcap_stitch.v; synth_ecp5 -top albcap_stitch -json n.json")
+    # the average mapping runs synth_ecp5 around its own abc9 step, -t in &if
+    script = _yosys_script("albcap_stitch", "n.json", "average")
+    assert "-run :map_luts" in script and "-run map_cells: -json n.json" in script
+    assert ",-t," in script and script.count("abc9") == 1
+
+
+def test_an_unknown_mapping_is_refused():
+    with pytest.raises(ValueError, match=r"mapping must be one of \('critical', 'average'\), "
+                                         r"not 'delay'"):
+        _yosys_script("albcap_stitch", "n.json", "delay")
+    with pytest.raises(ValueError, match="mapping must be one of"):
+        synthesize("albcap_stitch", mapping="delay")
+
+
+def test_the_average_mapping_leaves_no_register_two_levels_deep_in_the_stitch():
+    """Real Yosys runs (seconds): the stitch alone has registers two LUTs deep where ABC maps
+    for area below its critical arrival, and none with the outputs' average level minimised;
+    the same registers either way."""
+    from hdl.synth import levels
+
+    critical, average = (levels("albcap_stitch", mapping=m) for m in MAPPINGS)
+    assert set(critical) == set(average)
+    assert max(critical.values()) >= 2 and max(average.values()) == 1
 
 
 @pytest.mark.parametrize("call", [
