@@ -12,7 +12,10 @@ of flip-flops does not survive, so ``context="in"`` (``--context in``) places it
 :class:`PortShell` of registers, in context, its clock on a global network. Between Yosys and
 nextpnr, :mod:`hdl._remap` makes every flip-flop input of at most ``remap`` sources
 (``--remap K``; 4 by default, :data:`REMAP_INPUTS`) one LUT deep and proves the result equal
-to Yosys's netlist.
+to Yosys's netlist. ``mapping="average"`` (``--mapping average``, :data:`MAPPINGS`) has ABC map
+for the outputs' average level rather than for delay up to its critical arrival only; ABC's
+mapping is not proven here (nor is Yosys's default), only placed: the Verilog the tests check is
+the same either way.
 
 The first call of each tool compiles its WebAssembly (about two minutes for Yosys here); later
 calls reuse the cache.
