@@ -318,7 +318,8 @@ REMAP_INPUTS = 4
 #: same script with ``&if -t``, which minimises the average level of the outputs rather than
 #: only the largest. On the one-lane pipeline it took the registers two or more levels deep from
 #: 199 to 126 at 927 more ``LUT4`` s and 361 LUT6s, and placed seeds 1-8 at a mean of 182.9 MHz
-#: against 185.3 with the best seed yet (198.6) and the spread doubled (sixty-third session,
+#: against 185.3 with the spread doubled; with the filter's three cuts of trial 482885e, seed 4
+#: met 200 MHz (200.36, nothing missing), the first one-lane placement to (sixty-third session,
 #: ``docs/fpga-history.md``, "Three cuts of the filter").
 MAPPINGS = ("critical", "average")
 #: ``abc9``'s ``-W`` in ``synth_ecp5`` (ps a route between two LUTs counts in ABC's delays).
