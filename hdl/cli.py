@@ -231,12 +231,12 @@ def register(subparsers) -> None:
                   "(hdl/_remap.py; 0: Yosys's netlist as it is)")
     syn.add_argument("--remap", type=_remap_inputs, default=REMAP_INPUTS, metavar="K",
                      help=remap_help + "; the result is proven equal to Yosys's netlist")
-    from .synth import MAPPINGS
+    from .synth import MAPPING, MAPPINGS
 
     mapping_help = ("how ABC maps the logic into LUTs: critical (Yosys's synth_ecp5, for delay "
                     "up to the critical arrival, area below it: every recorded figure) or "
                     "average (&if -t: the outputs' average level minimised)")
-    syn.add_argument("--mapping", choices=MAPPINGS, default="critical", help=mapping_help)
+    syn.add_argument("--mapping", choices=MAPPINGS, default=MAPPING, help=mapping_help)
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")
@@ -267,6 +267,6 @@ def register(subparsers) -> None:
                           "clock")
     lev.add_argument("--remap", type=_remap_inputs, default=REMAP_INPUTS, metavar="K",
                      help=remap_help + " (the netlist placed; not proven here)")
-    lev.add_argument("--mapping", choices=MAPPINGS, default="critical", help=mapping_help)
+    lev.add_argument("--mapping", choices=MAPPINGS, default=MAPPING, help=mapping_help)
     lev.add_argument("--json", action="store_true", help="print every register as JSON")
     lev.set_defaults(func=_levels)

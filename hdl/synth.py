@@ -322,6 +322,8 @@ REMAP_INPUTS = 4
 #: met 200 MHz (200.36, nothing missing), the first one-lane placement to (sixty-third session,
 #: ``docs/fpga-history.md``, "Three cuts of the filter").
 MAPPINGS = ("critical", "average")
+#: ``mapping``'s default, Yosys's own script: every recorded figure's.
+MAPPING = MAPPINGS[0]
 #: ``abc9``'s ``-W`` in ``synth_ecp5`` (ps a route between two LUTs counts in ABC's delays).
 _ABC_WIRE_PS = 300
 
@@ -338,7 +340,7 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
                context: str = "out", placer: str = "heap", seed: int = 1,
                static: str = "pins", floorplan: str | None = None,
-               remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = "critical") -> dict:
+               remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = MAPPING) -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -416,7 +418,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 router: str, context: str, placer: str, seeds: list[int], static: str,
                 floorplan: str | None, jobs: int, remap: int = REMAP_INPUTS,
                 redraw: int = 0,
-                mapping: str = "critical") -> tuple[list[dict], list[set[str]]]:
+                mapping: str = MAPPING) -> tuple[list[dict], list[set[str]]]:
     """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
     depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
     a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
@@ -434,8 +436,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
             raise ValueError(f"seed must be an integer in 1..2**31-1, not {seed!r}")
     if floorplan is not None and floorplan not in FLOORPLANS:
         raise ValueError(f"unknown floorplan {floorplan!r}; known: {sorted(FLOORPLANS)}")
-    if mapping not in MAPPINGS:
-        raise ValueError(f"mapping must be one of {MAPPINGS}, not {mapping!r}")
+    _check_mapping(mapping)
     make = _component_class(name, context, static)
     if redraw and context != "in":
         raise ValueError(f"redraw={redraw!r} orders the shell's chains: in context only "
@@ -515,7 +516,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"floorplan": floorplan, "pinned": len(pinned)}
                    if floorplan is not None else {}),
                 **({"remap": remapped} if remapped else {}),
-                **({"mapping": mapping} if mapping != "critical" else {}),
+                **({"mapping": mapping} if mapping != MAPPING else {}),
                 **({"redraw": redraw} if redraw else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
@@ -527,13 +528,17 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
     return runs, missed, depth
 
 
-def _yosys_script(name: str, out: str, mapping: str = "critical") -> str:
+def _check_mapping(mapping: str) -> None:
+    if mapping not in MAPPINGS:
+        raise ValueError(f"mapping must be one of {MAPPINGS}, not {mapping!r}")
+
+
+def _yosys_script(name: str, out: str, mapping: str = MAPPING) -> str:
     """Yosys's commands for the ECP5 netlist of ``{name}.v`` into ``out``: ``synth_ecp5`` as it
     is for ``critical``; for ``average`` its steps up to the mapping, the mapping's own latch
     check and ``abc9`` with ``&if -t`` (:data:`MAPPINGS`), then its steps after it."""
-    if mapping not in MAPPINGS:
-        raise ValueError(f"mapping must be one of {MAPPINGS}, not {mapping!r}")
-    if mapping == "critical":
+    _check_mapping(mapping)
+    if mapping == MAPPING:
         return f"read_verilog {name}.v; synth_ecp5 -top {name} -json {out}"
     # synth_ecp5's map_luts step (`help synth_lattice`) with `-t` in abc9's default script;
     # the same commands without it make synth_ecp5's netlist (the filter alone: every cell
@@ -548,7 +553,7 @@ def _yosys_script(name: str, out: str, mapping: str = "critical") -> str:
 
 def _netlist(component, name: str, context: str, static: str, wd: Path, yosys: str,
              remap: int = REMAP_INPUTS, check: bool = True,
-             redraw: int = 0, mapping: str = "critical") -> tuple[Path, dict | None]:
+             redraw: int = 0, mapping: str = MAPPING) -> tuple[Path, dict | None]:
     """Verilog of ``component`` (alone, or in a :class:`PortShell` when ``context`` is
     ``in``) and Yosys's ECP5 netlist of it, ``wd/{name}.v`` and ``wd/{name}.json``.
 
@@ -597,7 +602,7 @@ def _component_class(name: str, context: str, static: str):
 
 def levels(name: str, params: dict | None = None, context: str = "out",
            static: str = "pins", match: str = "", path: str | None = None,
-           remap: int = REMAP_INPUTS, mapping: str = "critical"):
+           remap: int = REMAP_INPUTS, mapping: str = MAPPING):
     """Synthesize one component with Yosys only (a minute, where placing and routing a
     many-lane join takes hours) and give :func:`hdl._levels.logic_levels` of its netlist:
     ``{register: LUT and carry-chain levels into it}`` for the registers ``match`` finds;
@@ -718,7 +723,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
               floorplan: str | None = None, jobs: int = 1,
-              remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = "critical") -> dict:
+              remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = MAPPING) -> dict:
     """:func:`synthesize` every component named (default: every exported one of
     :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every

@@ -354,7 +354,6 @@ def test_cli_refuses_to_record_a_redraw(tmp_path, capsys):
     assert not out.exists()
 
 
-
 def test_the_critical_mapping_is_synth_ecp5_as_it_is():
     """Every recorded figure's netlist: Yosys's own script, nothing in between."""
     assert MAPPINGS[0] == "critical"
