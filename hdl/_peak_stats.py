@@ -203,14 +203,10 @@ def window_statistics(m, cfg, *, lanes, levels, lookahead, st_beat, st_base, st_
     dm = _delay_to(m, s1_dev, depth + 2, "dev_m")
     devs = []
     for j in range(L):
-        # y - mu and mu - y, then a clock later the magnitude, the one of the two that is not
-        # negative: a LUT of registers (a subtract, a compare and a negation in one clock were
-        # a worst path; the negation after the register, a 25-bit chain and the choice,
-        # `dev_diff0` -> `dev0`, the one-lane pipeline's worst path on a seed, 5.91 ns,
-        # sixty-fourth session)
+        # y - mu, then its magnitude a clock later (a subtract, a compare and a negation in one
+        # clock were a worst path)
         diff = _reg(m, Mux(dm[j], dy[j] - mu, 0), signed(OUT_WIDTH + 1), f"dev_diff{j}")
-        ndiff = _reg(m, Mux(dm[j], mu - dy[j], 0), signed(OUT_WIDTH + 1), f"dev_ndiff{j}")
-        devs.append(_reg(m, Mux(diff[-1], ndiff, diff), unsigned(OUT_WIDTH + 1), f"dev{j}"))
+        devs.append(_reg(m, Mux(diff < 0, -diff, diff), unsigned(OUT_WIDTH + 1), f"dev{j}"))
     dev_tree = _sum_tree(m, devs, "dev_tree")
     sd2 = _delay(m, sd[depth + 3], depth + 1, "side_dev")
     t = sd2[depth + 1]  # the side band of the beat at the dev tree's root

@@ -14,27 +14,15 @@ from contextlib import contextmanager
 from functools import reduce
 from operator import or_
 
-from amaranth.hdl import (
-    ClockSignal,
-    Const,
-    Elaboratable,
-    Instance,
-    Module,
-    Mux,
-    ResetSignal,
-    Signal,
-    Value,
-    signed,
-    unsigned,
-)
+from amaranth.hdl import Const, Module, Mux, Signal, Value, signed, unsigned
 from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from ._bram import DEEPEST, BlockRAM
 
-__all__ = ["RAM_DELAY_MIN", "KeptRegister", "OneHotFSM", "RegisterSlice", "_Store", "_delay",
-           "_delay_to", "_le", "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub",
-           "_sub_sign", "_sum_tree", "_thermometer_next", "register_slice"]
+__all__ = ["RAM_DELAY_MIN", "OneHotFSM", "RegisterSlice", "_Store", "_delay", "_delay_to", "_le",
+           "_output_buffer", "_ram_delay", "_reg", "_room", "_step", "_sub", "_sub_sign",
+           "_sum_tree", "_thermometer_next", "register_slice"]
 
 
 #: Entries of the output buffer of a :class:`_Store` read free (``free_read``), counting those
@@ -106,61 +94,6 @@ def _cut(m, value, name):
     s = Signal(value.shape(), name=name, attrs={"keep": 1})
     m.d.comb += s.eq(value)
     return s
-
-
-class KeptRegister(Elaboratable):
-    """``q`` is ``d`` a clock before: a register that synthesis keeps apart from its twins.
-
-    Yosys merges flip-flops whose inputs are the same (``opt_merge``), so a register copied
-    to split a net's loads (a copy for a loop, another for a far consumer) is one flip-flop
-    again in the netlist, placed between its loads, and logic that reads it is shared again
-    by both. For an ECP5 platform (``platform.family == "ecp5"``, as :mod:`hdl.synth`
-    passes) this instantiates a ``TRELLIS_FF`` per bit, which Yosys does not merge, with the
-    parameters its own mapping gives a register of the ``sync`` domain (clock enable tied
-    high, the reset synchronous, ``REGSET`` the initial value); otherwise (simulation,
-    Verilator, other vendors) a plain register, cycle for cycle the same. Written by hand:
-    Amaranth puts a ``keep`` attribute on wires, not on the flip-flop cells.
-
-    Parameters
-    ----------
-    width : int, >= 1
-        Bits of ``d`` and ``q``.
-    init : int
-        ``q`` at power-up and after a reset (0 by default).
-    reset_less : bool
-        Not reset by the domain's reset (as ``Signal(reset_less=True)``).
-
-    Latency: one clock (``q`` at a clock is ``d`` at the clock before).
-    """
-
-    def __init__(self, width: int, init: int = 0, reset_less: bool = False):
-        problem = (f"width must be an integer >= 1, not {width!r}"
-                   if isinstance(width, bool) or not isinstance(width, int) or width < 1 else
-                   f"init must fit {width} unsigned bits, not {init!r}"
-                   if isinstance(init, bool) or not isinstance(init, int)
-                   or not 0 <= init < 1 << width else None)
-        if problem:
-            self._MustUse__silence = True  # refused, so never meant to be elaborated
-            raise ValueError(problem)
-        self.width, self.init, self.reset_less = width, init, reset_less
-        self.d = Signal(width)
-        self.q = Signal(width, init=init, reset_less=reset_less)
-
-    def elaborate(self, platform):
-        m = Module()
-        if getattr(platform, "family", None) != "ecp5":
-            m.d.sync += self.q.eq(self.d)
-            return m
-        # (a reset-less register has no SRMODE, as Yosys maps one: its LSR is tied low; so is
-        # a reset register's in a reset-less domain, where the SRMODE is the cell's default)
-        reset = {"i_LSR": 0} if self.reset_less else {
-            "i_LSR": ResetSignal(allow_reset_less=True), "p_SRMODE": "LSR_OVER_CE"}
-        for i in range(self.width):
-            m.submodules[f"ff{i}"] = Instance(
-                "TRELLIS_FF", p_GSR="DISABLED", p_CEMUX="1", p_CLKMUX="CLK", p_LSRMUX="LSR",
-                p_REGSET="SET" if self.init >> i & 1 else "RESET", i_CLK=ClockSignal(),
-                i_DI=self.d[i], o_Q=self.q[i], **reset)
-        return m
 
 
 def _delay(m, value, n, name, shape=None):
@@ -516,11 +449,7 @@ class _Store(wiring.Component):
         # fabric register three
         valid = _delay(m, take, 3, "read_v")
         word = _reg(m, ram.r_data, self.width, "read_word", reset_less=True)
-        # (`r.valid` a register, from the valid a stage ahead: as the OR of "any held" and the
-        # last stage's valid, `obuf_held0` -> that LUT -> the consumer's slice's `w_rdy` was
-        # the gate store's worst path on a seed, 5.94 ns with routes of 2.9 and 2.3,
-        # sixty-fourth session)
-        _output_buffer(m, self.r, READ_BUFFER, word, valid[3], valid_ahead=valid[2])
+        _output_buffer(m, self.r, READ_BUFFER, word, valid[3])
         leave = self.r.valid & self.r.ready
 
         # (n1 steps by `take_c`, the take made from `empty`: `ne`'s take also drives the read

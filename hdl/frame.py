@@ -194,12 +194,6 @@ class FramePacketizer(wiring.Component):
         # thirty-sixth session.)
         buf = m.submodules.buf = BlockRAM(_KEPT, self.max_samples)
         raddr = Signal(range(self.max_samples))  # the next word to read (wraps; see LINK_HEADER)
-        # `raddr + 1`, counted beside it, so that `raddr` loads a register, not an add: its
-        # bits go to the address pins of every block, which pull them away from the carry
-        # chain, and the add's loop (`raddr` -> 3 ns of route -> the chain -> `raddr`) was
-        # the worst path of two seeds in eight (5.76 and 5.32 ns, sixty-fourth session).
-        # The chain's loop is `raddr_n`'s own, which nothing else pulls away.
-        raddr_n = Signal(raddr.shape(), init=1 % (1 << len(raddr)))
         j_last = Signal()  # SAMPLES, j == ibytes - 1: the next word is loaded
         adv, word_en = Signal(), Signal()
         m.d.sync += [j_last.eq(0), adv.eq(0), word_en.eq(0)]  # unless set below
@@ -273,7 +267,7 @@ class FramePacketizer(wiring.Component):
         m.d.sync += [buf.w_addr.eq(n), buf.w_data.eq(item),
                      buf.w_en.eq(take & ~peaks_q & room_n)]
         with m.If(adv):
-            m.d.sync += [raddr.eq(raddr_n), raddr_n.eq(raddr_n + 1)]
+            m.d.sync += raddr.eq(raddr + 1)
 
         # ---- the finished frame: flags, length, sizes ----
         found_s = res.surface.kind != 0
@@ -346,14 +340,9 @@ class FramePacketizer(wiring.Component):
         got = self.o.valid & self.o.ready
         # the room counts a byte from its choice (a clock early) and a byte sent a clock
         # after it leaves (`got_q`, so that `o.ready` reaches no enable of the count): both
-        # err on the safe side only. The level, a status, counts a byte from its write to a
-        # clock after its leave: both steps are registers, so it is one add of its step (a
-        # carry chain straight into the register; as a choice after two chains, `level` ->
-        # a chain -> the choice -> `level` was a worst path, 4.99 ns with two 1.4-ns routes,
-        # and missed 200 MHz on two seeds of eight, sixty-fourth session).
+        # err on the safe side only. The level counts a byte from its write to its leave.
         got_q = _reg(m, got, 1, "got_q")
-        level_step = Mux(put_q, Mux(got_q, 0, 1), Mux(got_q, -1, 0))
-        m.d.sync += [room.eq(_step(room, got_q, put)), level.eq(level + level_step)]
+        m.d.sync += [room.eq(_step(room, got_q, put)), level.eq(_step(level, put_q, got))]
         # The compare registered twice, a clock apart: once at the compare's carry chain,
         # once beside the decision's registers (as one register the chain's end ran 2.3 ns to
         # the decision's side, the pipeline's worst path on seed 1, 6.08 ns, thirty-sixth
@@ -541,7 +530,7 @@ class FramePacketizer(wiring.Component):
                     pkt.eq(Cat(Const(int.from_bytes(LINK_SYNC_BYTES, "little"), 16),
                                Const(PacketType.FRAME, 8), seq, body)),
                     pos.eq(1),
-                    raddr.eq(0), raddr_n.eq(1),
+                    raddr.eq(0),
                     *advance(1, False),
                     seq.eq(seq + 1),
                     self.frames_sent.eq(self.frames_sent + 1),

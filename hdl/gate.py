@@ -26,17 +26,15 @@ from amaranth.lib.wiring import In, Out
 from model.gate import COARSE_BITS, FINE_BITS, SHOT_BITS
 from model.layouts import FRAME_HEADER, FRAME_SYNC, FrameFlag
 
-from ._primitives import KeptRegister, _le, _reg, _step, _Store, _sub
+from ._primitives import _le, _reg, _step, _Store, _sub
 from .layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT, config_signature, struct_layout
 
-__all__ = ["DROP_BITS", "HEADER_LATENCY", "LATENCY", "REGISTER_LATENCY", "Gate"]
+__all__ = ["DROP_BITS", "HEADER_LATENCY", "LATENCY", "Gate"]
 
 #: Clocks from an input sample to the same sample on ``o`` (FIFO empty, ``o.ready`` high).
 LATENCY = 6
 #: Clocks from a frame's last sample entering to its header being valid on ``header``.
 HEADER_LATENCY = 5
-#: Clocks from a register write (``cfg``, ``bank_id``) to the first clock that acts on it.
-REGISTER_LATENCY = 2
 #: Width of the saturating dropped-frame counter.
 DROP_BITS = 16
 
@@ -123,10 +121,9 @@ class Gate(wiring.Component):
     the two read registers of the block RAM and a register after them, the store read free);
     one sample per clock sustained.
 
-    The registers (``cfg``) and ``bank_id`` act from the second clock after they are written
-    (:data:`REGISTER_LATENCY`): the gate copies them into registers of its own and reads what
-    it makes of them from registers again, so that no path in the device (where they are the
-    link's registers, placed anywhere) runs from them through its logic.
+    The registers (``cfg``) and ``bank_id`` act from the clock after they are written: the
+    gate reads them, and what it makes of them, from registers of its own, so that no path in
+    the device (where they are the link's registers) runs from them through its logic.
     ``gate_len``, ``frame_type`` and ``bank_id`` are latched when a trigger is accepted, so a
     frame's header always describes that frame; ``gate_delay`` likewise; ``fine_div`` is read
     on a line sync and on the sample after each tick (a change between line syncs takes effect
@@ -165,31 +162,16 @@ class Gate(wiring.Component):
         step = self.i.valid  # one sample clock of the specification
         m.d.comb += self.i.ready.eq(1)
 
-        # The registers, and what the gate makes of them, two clocks after the ports: copied
-        # first into registers of the gate's own (`*_p`), then each flag or difference made
-        # from the copies is registered again (`*_q`). Every path from a port is then a route
-        # alone, and every path from a copy a carry chain and a LUT beside it. In the device
-        # (`hdl.top`) the ports are the link's registers, and paths from them are timed like
-        # any other: read live, `fine_div` through the tick into the fine counter held the gate
-        # alone at 137 MHz; read through one register (`*_q` from the ports), the port ->
-        # a 16-bit chain -> `delay1_q`, `single0_q`, `single1_q` missed 200 MHz on 20 of 36
-        # placements of the recorded pipeline (6.28 ns on one, sixty-third session), the
-        # port's register placed far from the chain. So a register written at one clock acts
-        # from the second after it (the model's "between frames", to the clock).
+        # The registers, and what the gate makes of them, one clock after the ports: every
+        # path from a register then starts at a register of the gate's own and is a LUT or a
+        # carry chain deep. In the device (`hdl.top`) the ports are the link's registers, and
+        # paths from them are timed like any other: read live, `fine_div` through the tick
+        # into the fine counter held the gate alone at 137 MHz. So a register written at one
+        # clock acts from the next (the model's "between frames", to the clock).
         def q(value, shape, name):
             return _reg(m, value, shape, f"{name}_q", True)
 
-        # (the copies are kept apart from the ports' registers: a port register loaded at
-        # every clock, as the shell's chain in context, has the copy's input, and Yosys
-        # merged the two, so the copy stood where the port's register did)
-        def port(value, name):
-            kept = m.submodules[f"{name}_p"] = KeptRegister(len(value), reset_less=True)
-            m.d.comb += kept.d.eq(value)
-            return kept.q
-
-        gate_len, gate_delay, fine_div = (port(cfg.gate_len, "gate_len"),
-                                          port(cfg.gate_delay, "gate_delay"),
-                                          port(cfg.fine_div, "fine_div"))
+        gate_len, gate_delay, fine_div = cfg.gate_len, cfg.gate_delay, cfg.fine_div
 
         def less(value, k, name):
             """`value - k` on one carry chain (`_sub`): its low bits (the difference modulo
@@ -234,9 +216,8 @@ class Gate(wiring.Component):
         div_le1 = q(div_lt2, 1, "div_le1")
         div2 = q(div_lt3 & ~div_lt2, 1, "div2")
         div_m2 = q(div_less2, fine_div.shape(), "div_m2")
-        # (copied twice as well, so that every register acts from the same clock)
-        frame_type = q(port(cfg.frame_type, "frame_type"), cfg.frame_type.shape(), "frame_type")
-        bank_id = q(port(self.bank_id, "bank_id"), self.bank_id.shape(), "bank_id")
+        frame_type = q(cfg.frame_type, cfg.frame_type.shape(), "frame_type")
+        bank_id = q(self.bank_id, self.bank_id.shape(), "bank_id")
 
         # Frame store: the samples and the headers of the admitted frames. The admission test
         # below (length <= free, free counting depth - entries held) guarantees room for every

