@@ -317,10 +317,11 @@ REMAP_INPUTS = 4
 #: with their neighbours wherever a deeper path elsewhere leaves it the slack. ``average``: the
 #: same script with ``&if -t``, which minimises the average level of the outputs rather than
 #: only the largest. On the one-lane pipeline it took the registers two or more levels deep from
-#: 199 to 126 at 927 more ``LUT4`` s and 361 LUT6s, and placed seeds 1-8 at a mean of 182.9 MHz
+#: 199 to 126 at 927 more ``LUT4``\ s and 361 LUT6s, and placed seeds 1-8 at a mean of 182.9 MHz
 #: against 185.3 with the spread doubled; with the filter's three cuts of trial 482885e, seed 4
-#: met 200 MHz (200.36, nothing missing), the first one-lane placement to (sixty-third session,
-#: ``docs/fpga-history.md``, "Three cuts of the filter").
+#: met 200 MHz (200.36, nothing missing), the first one-lane placement to do so (sixty-third
+#: session, ``docs/fpga-history.md``, "Three cuts of the filter"), but that netlist redrawn
+#: placed at a mean of 180.8 (sixty-fourth session, "*F2t* redrawn"): not the recorded method.
 MAPPINGS = ("critical", "average")
 #: ``mapping``'s default, Yosys's own script: every recorded figure's.
 MAPPING = MAPPINGS[0]
