@@ -114,7 +114,7 @@ def _synth(args) -> int:
                          f"spread, not a figure to record: leave out --out")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
                     args.placer, args.seed, args.static, args.floorplan, args.jobs,
-                    args.remap, args.redraw, args.mapping)
+                    args.remap, args.redraw, args.mapping, args.speed)
     if args.out is not None:
         from .synth import record_figures
 
@@ -179,7 +179,8 @@ def register(subparsers) -> None:
                      help="export only this component (repeatable; default all)")
     exp.set_defaults(func=_export)
     syn = actions.add_parser(
-        "synth", help="FPGA figures (fmax, LUTs, FFs, DSPs, BRAMs) for an ECP5-85, speed 6",
+        "synth", help="FPGA figures (fmax, LUTs, FFs, DSPs, BRAMs) for an ECP5-85, speed 6 "
+        "(the targets' grade; --speed for the faster ones)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     syn.add_argument("--json", action="store_true", help="print one JSON object")
     from .synth import synth_components
@@ -237,6 +238,11 @@ def register(subparsers) -> None:
                     "up to the critical arrival, area below it: every recorded figure) or "
                     "average (&if -t: the outputs' average level minimised)")
     syn.add_argument("--mapping", choices=MAPPINGS, default=MAPPING, help=mapping_help)
+    from .synth import DEVICE, SPEEDS
+
+    syn.add_argument("--speed", type=int, choices=SPEEDS, default=DEVICE["speed"],
+                     help="the part's speed grade (nextpnr's --speed; 8 the fastest): the "
+                          "targets are set for 6; a file of figures holds one grade's")
     syn.add_argument("--out", type=Path, default=None,
                      help="also merge the figures into this JSON file (e.g. "
                           "docs/figures/fpga.json, which the accuracy study reads)")

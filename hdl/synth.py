@@ -44,11 +44,16 @@ from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
 from ._levels import cell_register, deepest_path, logic_levels
 from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
 
-__all__ = ["DEVICE", "ECP5_SYNTH", "failing_endpoints", "figure_key", "levels", "missing_on",
-           "record_figures", "seeds_mean", "synth_all", "synth_components", "synthesize"]
+__all__ = ["DEVICE", "ECP5_SYNTH", "SPEEDS", "failing_endpoints", "figure_key", "levels",
+           "missing_on", "record_figures", "seeds_mean", "synth_all", "synth_components",
+           "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
+#: The LFE5U-85F's speed grades, slowest first (nextpnr-ecp5's ``--speed``). Every target of
+#: the issue is set for grade 6, :data:`DEVICE`'s; the faster grades place the same netlist
+#: with faster cells and routes, for an engineer choosing the part (``docs/fpga.md``).
+SPEEDS = (6, 7, 8)
 #: Registers a result's ``failing`` lists (the worst), and ``missing_on`` (the most seeds).
 FAILING_LISTED, MISSING_ON_LISTED = 8, 16
 
@@ -341,7 +346,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
                work_dir=None, params: dict | None = None, router: str = "router1",
                context: str = "out", placer: str = "heap", seed: int = 1,
                static: str = "pins", floorplan: str | None = None,
-               remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = MAPPING) -> dict:
+               remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = MAPPING,
+               speed: int = DEVICE["speed"]) -> dict:
     """Synthesize and place-and-route one exported component.
 
     Parameters
@@ -400,6 +406,10 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         How ABC maps the logic into LUTs (:data:`MAPPINGS`): Yosys's own script, or with
         ``&if -t``, the average level of the outputs minimised. Recorded in the result
         (``mapping``) when not ``critical``.
+    speed : {6, 7, 8}
+        The part's speed grade (:data:`SPEEDS`): 6, :data:`DEVICE`'s, for every target and
+        recorded figure. Recorded in the result (``speed``) when not 6; :func:`synth_all`
+        puts it in its ``device``.
 
     Returns
     -------
@@ -411,15 +421,15 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
                                         context, placer, [seed], static, floorplan, 1, remap,
-                                        redraw, mapping)
+                                        redraw, mapping, speed)
     return runs[0]
 
 
 def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, params: dict | None,
                 router: str, context: str, placer: str, seeds: list[int], static: str,
                 floorplan: str | None, jobs: int, remap: int = REMAP_INPUTS,
-                redraw: int = 0,
-                mapping: str = MAPPING) -> tuple[list[dict], list[set[str]]]:
+                redraw: int = 0, mapping: str = MAPPING,
+                speed: int = DEVICE["speed"]) -> tuple[list[dict], list[set[str]]]:
     """:func:`synthesize` for each of ``seeds``, from one Yosys netlist: the netlist does not
     depend on nextpnr's seed, and Yosys is a minute of a one-lane pipeline's five (several of
     a join's). With one seed nextpnr's files are in ``work_dir`` itself, with several in
@@ -438,6 +448,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
     if floorplan is not None and floorplan not in FLOORPLANS:
         raise ValueError(f"unknown floorplan {floorplan!r}; known: {sorted(FLOORPLANS)}")
     _check_mapping(mapping)
+    _check_speed(speed)
     make = _component_class(name, context, static)
     if redraw and context != "in":
         raise ValueError(f"redraw={redraw!r} orders the shell's chains: in context only "
@@ -475,7 +486,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
             sd.mkdir(exist_ok=True)
             # (the netlist by a path relative to the run's directory: YoWASP's sandbox did not
             # open it by its absolute path)
-            places.append(([nextpnr, "--85k", "--speed", str(DEVICE["speed"]), "--package",
+            places.append(([nextpnr, "--85k", "--speed", str(speed), "--package",
                             DEVICE["package"], "--json",
                             netlist.name if sd == wd else f"../{netlist.name}",
                             "--freq", str(target_mhz),
@@ -519,6 +530,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"remap": remapped} if remapped else {}),
                 **({"mapping": mapping} if mapping != MAPPING else {}),
                 **({"redraw": redraw} if redraw else {}),
+                **({"speed": speed} if speed != DEVICE["speed"] else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
                 "seconds": round(made + placed, 1),
@@ -532,6 +544,12 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
 def _check_mapping(mapping: str) -> None:
     if mapping not in MAPPINGS:
         raise ValueError(f"mapping must be one of {MAPPINGS}, not {mapping!r}")
+
+
+def _check_speed(speed: int) -> None:
+    if isinstance(speed, bool) or speed not in SPEEDS:
+        raise ValueError(f"speed must be one of the {DEVICE['part']}'s grades {SPEEDS}, "
+                         f"not {speed!r}")
 
 
 def _yosys_script(name: str, out: str, mapping: str = MAPPING) -> str:
@@ -724,7 +742,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               router: str = "router1", context: str = "out", placer: str = "heap",
               seed: int | Sequence[int] = 1, static: str = "pins",
               floorplan: str | None = None, jobs: int = 1,
-              remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = MAPPING) -> dict:
+              remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = MAPPING,
+              speed: int = DEVICE["speed"]) -> dict:
     """:func:`synthesize` every component named (default: every exported one of
     :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
@@ -745,7 +764,11 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     the 2-core machine ``jobs=2`` halves a many-seed run (a join's seed is 40-65 minutes).
     The figures do not depend on it (nextpnr is deterministic per seed); only ``seconds``
     grows when the runs share the cores.
+
+    ``speed`` is the part's speed grade (:data:`SPEEDS`), in the result's ``device``: a file
+    of figures holds one device's (:func:`record_figures` refuses another's).
     """
+    _check_speed(speed)
     seeds = [seed] if isinstance(seed, int) else list(seed)
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be one or more distinct integers, not {seed!r}")
@@ -756,7 +779,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     for n in names:
         runs, missed, depth = _synthesize(n, target_mhz, None, None, params, router, context,
                                           placer, seeds, static, floorplan, jobs, remap,
-                                          redraw, mapping)
+                                          redraw, mapping, speed)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])
         if len(runs) > 1:
             each = {str(r["seed"]): r["fmax_mhz"] for r in runs}
@@ -765,7 +788,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
                       "missing_any": len(set().union(*missed)),
                       "missing_by_depth": missing_by_depth(depth, missed)}
         components[n] = lowest
-    return {"device": DEVICE, "components": components}
+    return {"device": {**DEVICE, "speed": speed}, "components": components}
 
 
 def missing_on(missed: Sequence[set[str]], listed: int = MISSING_ON_LISTED) -> list[dict]:

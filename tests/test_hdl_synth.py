@@ -8,6 +8,7 @@ from firmware_host.cli import main
 from hdl.synth import (
     DEVICE,
     MAPPINGS,
+    SPEEDS,
     _yosys_script,
     failing_endpoints,
     figure_key,
@@ -352,6 +353,38 @@ def test_cli_refuses_to_record_a_redraw(tmp_path, capsys):
         with pytest.raises(SystemExit, match=msg):
             main(["hdl", "synth", "--component", "albcap_stitch", "--redraw", "1", *extra])
     assert not out.exists()
+
+
+def test_a_faster_grade_places_the_same_netlist_faster(tmp_path):
+    """``speed``: the grade reaches nextpnr (the same netlist on the same seed closes a
+    shorter worst path on grade 8 than on grade 6), is in the result's device and in each
+    figure, and a file of grade-6 figures refuses grade 8's, unchanged."""
+    assert SPEEDS == (6, 7, 8) and DEVICE["speed"] == 6
+    slow, fast = (synth_all(["albcap_stitch"], speed=s) for s in (6, 8))
+    assert slow["device"] == DEVICE and fast["device"] == {**DEVICE, "speed": 8}
+    r6, r8 = slow["components"]["albcap_stitch"], fast["components"]["albcap_stitch"]
+    assert "speed" not in r6 and r8["speed"] == 8
+    assert (r8["luts"], r8["ffs"], r8["dsps"]) == (r6["luts"], r6["ffs"], r6["dsps"])
+    assert r8["fmax_mhz"] > 1.05 * r6["fmax_mhz"], (r6["fmax_mhz"], r8["fmax_mhz"])
+    path = tmp_path / "fpga.json"
+    record_figures(path, slow)
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match=r"holds figures for .*'speed': 6.*, not .*'speed': 8"):
+        record_figures(path, fast)
+    assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("bad", [5, 9, True, "8"])
+def test_an_unknown_speed_grade_is_refused(bad, capsys):
+    with pytest.raises(ValueError, match=rf"speed must be one of the LFE5U-85F's grades "
+                                         rf"\(6, 7, 8\), not {bad!r}"):
+        synthesize("albcap_stitch", speed=bad)
+    with pytest.raises(ValueError, match="speed must be one of"):
+        synth_all(["albcap_stitch"], speed=bad)
+    if isinstance(bad, int) and not isinstance(bad, bool):
+        with pytest.raises(SystemExit):
+            main(["hdl", "synth", "--component", "albcap_stitch", "--speed", str(bad)])
+        assert f"argument --speed: invalid choice: {bad}" in capsys.readouterr().err
 
 
 def test_the_critical_mapping_is_synth_ecp5_as_it_is():
