@@ -44,7 +44,8 @@ from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
 from ._levels import cell_register, deepest_path, logic_levels
 from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
 
-__all__ = ["DEVICE", "ECP5_SYNTH", "SPEEDS", "failing_endpoints", "figure_key", "levels",
+__all__ = ["DEVICE", "ECP5_SYNTH", "PIPELINE_STAGES", "SPEEDS", "failing_endpoints",
+           "figure_key", "fmax_by_stage", "levels",
            "missing_on", "record_figures", "seeds_mean", "synth_all", "synth_components",
            "synthesize"]
 
@@ -56,6 +57,12 @@ DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA38
 SPEEDS = (6, 7, 8)
 #: Registers a result's ``failing`` lists (the worst), and ``missing_on`` (the most seeds).
 FAILING_LISTED, MISSING_ON_LISTED = 8, 16
+#: The one-lane pipeline's stages by the names of their registers (its submodules,
+#: ``hdl.pipeline.Pipeline``; in context each under the shell's ``core.``), for
+#: :func:`fmax_by_stage`. A register of none of them (the slices and rings that join the
+#: stages, the shell) belongs to ``"joins"``.
+PIPELINE_STAGES = {"stitch": "stitch.", "gate": "gate.", "filter": "detect.filter.",
+                   "detector": "detect.detect.", "packetizer": "pack."}
 
 
 class _Ecp5Synth:
@@ -533,6 +540,9 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"speed": speed} if speed != DEVICE["speed"] else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
+                **({"by_stage": fmax_by_stage(report, PIPELINE_STAGES,
+                                              "core." if context == "in" else "")}
+                   if name == "albcap_pipeline" else {}),
                 "seconds": round(made + placed, 1),
             })
         # each register's logic depth, to tell the misses of several placements by depth
@@ -705,6 +715,25 @@ def failing_endpoints(report: dict, period_ns: float,
         "endpoints"}``. None when the report has no detailed timing (nextpnr run without
         the option).
     """
+    arrival = _arrivals(report)
+    if arrival is None:
+        return None
+    by_register: dict[str, list[float]] = {}
+    for (cell, _port), d in arrival.items():
+        slack = period_ns - d
+        if slack < 0:
+            by_register.setdefault(cell_register(cell), []).append(slack)
+    ranked = sorted(by_register.items(), key=lambda kv: min(kv[1]))
+    return {"endpoints": sum(len(v) for v in by_register.values()),
+            "registers": len(by_register),
+            "worst": [{"register": reg, "slack_ns": round(min(v), 3), "endpoints": len(v)}
+                      for reg, v in ranked[:worst]]}
+
+
+def _arrivals(report: dict) -> dict[tuple[str, str], float] | None:
+    """Every timed endpoint's latest arrival, ns after the launching edge, by ``(cell,
+    port)``, from nextpnr's ``--detailed-timing-report`` (None without it); the paths from or
+    to an unconstrained pin left out (:func:`failing_endpoints`)."""
     nets = report.get("detailed_net_timings")
     if nets is None:
         return None
@@ -719,16 +748,64 @@ def failing_endpoints(report: dict, period_ns: float,
             d = max(d) if isinstance(d, list) else float(d)  # [min, max] in nextpnr 0.11
             key = (ep["cell"], ep["port"])
             arrival[key] = max(arrival.get(key, d), d)
-    by_register: dict[str, list[float]] = {}
+    return arrival
+
+
+def fmax_by_stage(report: dict, stages: dict[str, str], prefix: str = "") -> dict | None:
+    """The clock each stage's own endpoints allow in one placement, MHz to a tenth:
+    ``1000 /`` the latest arrival at a register (or a hard block's input) of the stage.
+
+    The pipeline's fmax is the lowest of these. Read across several placements they say
+    whether one stage holds the clock or all do: over seeds 1-8 of the recorded one-lane
+    pipeline each of the filter, the detector, the gate and the packetizer allowed 191-196
+    MHz on the mean and 181-184 on its lowest seed, and with any one stage's endpoints left
+    out the pipeline's mean rose by 2 MHz at most (``docs/fpga.md``, "Four stages, each its
+    own tail"). From arrivals, as :func:`failing_endpoints`: a hard block's setup time is not
+    counted, so a stage's figure can be a little above the clock nextpnr reports for it.
+
+    Parameters
+    ----------
+    report : dict
+        nextpnr's ``--report`` JSON, written with ``--detailed-timing-report``.
+    stages : dict
+        ``{stage: prefix of its registers' names}`` (:data:`PIPELINE_STAGES`); the longest
+        prefix that matches wins, and a register of none belongs to ``"joins"``.
+    prefix : str
+        Put in front of every stage's prefix (``"core."`` in context).
+
+    Returns
+    -------
+    dict or None
+        ``{stage: MHz}`` for every stage with a timed endpoint, ``"joins"`` last; None when
+        the report has no detailed timing.
+    """
+    arrival = _arrivals(report)
+    if arrival is None:
+        return None
+    ranked = sorted(((prefix + p, st) for st, p in stages.items()), key=lambda x: -len(x[0]))
+    latest: dict[str, float] = {}
     for (cell, _port), d in arrival.items():
-        slack = period_ns - d
-        if slack < 0:
-            by_register.setdefault(cell_register(cell), []).append(slack)
-    ranked = sorted(by_register.items(), key=lambda kv: min(kv[1]))
-    return {"endpoints": sum(len(v) for v in by_register.values()),
-            "registers": len(by_register),
-            "worst": [{"register": reg, "slack_ns": round(min(v), 3), "endpoints": len(v)}
-                      for reg, v in ranked[:worst]]}
+        name = cell_register(cell)
+        st = next((st for p, st in ranked if name.startswith(p)), "joins")
+        latest[st] = max(latest.get(st, 0.0), d)
+    order = [st for st in stages if st in latest] + (["joins"] if "joins" in latest else [])
+    return {st: round(1000.0 / latest[st], 1) for st in order}
+
+
+def stage_summary(runs: Sequence[dict]) -> dict:
+    """Several placements' :func:`fmax_by_stage` (each run's ``by_stage``) in one: per stage
+    the mean and the lowest over the placements, MHz, and ``without_mean_mhz``: the mean over
+    them of the clock the other stages allow (the pipeline's with that stage's endpoints
+    left out, the placements as they are). A stage whose ``without`` is close to the
+    pipeline's own mean does not hold the clock alone: a change to it alone cannot show."""
+    stages = list(runs[0]["by_stage"])
+    out = {}
+    for st in stages:
+        each = [r["by_stage"][st] for r in runs]
+        rest = [min(v for k, v in r["by_stage"].items() if k != st) for r in runs]
+        out[st] = {"mean_mhz": round(sum(each) / len(each), 1), "lowest_mhz": min(each),
+                   "without_mean_mhz": round(sum(rest) / len(rest), 1)}
+    return out
 
 
 def seeds_mean(seeds: dict) -> float:
@@ -786,7 +863,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
             lowest = {**lowest, "seeds": each, "seeds_mean_mhz": seeds_mean(each),
                       "missing_on": missing_on(missed),
                       "missing_any": len(set().union(*missed)),
-                      "missing_by_depth": missing_by_depth(depth, missed)}
+                      "missing_by_depth": missing_by_depth(depth, missed),
+                      **({"stages": stage_summary(runs)} if "by_stage" in lowest else {})}
         components[n] = lowest
     return {"device": {**DEVICE, "speed": speed}, "components": components}
 
@@ -936,6 +1014,11 @@ def print_table(res: dict) -> None:
         if r.get("missing_any"):
             print(f"{'':>16} {r['missing_any']} registers miss the clock on at least one of "
                   f"the {n} seeds")
+        if r.get("stages"):
+            each = "; ".join(f"{st} {v['mean_mhz']} ({v['without_mean_mhz']})"
+                             for st, v in r["stages"].items())
+            print(f"{'':>16} by stage, the mean MHz its endpoints allow (the pipeline's mean "
+                  f"without them): {each}")
         if r.get("missing_by_depth"):
             rows = "; ".join(f"{'unnamed' if x['levels'] is None else x['levels']}: "
                              f"{x['missing_any']}" + (f" of {x['registers']}" if 'registers' in x

@@ -8,14 +8,17 @@ from firmware_host.cli import main
 from hdl.synth import (
     DEVICE,
     MAPPINGS,
+    PIPELINE_STAGES,
     SPEEDS,
     _yosys_script,
     failing_endpoints,
     figure_key,
+    fmax_by_stage,
     missing_by_depth,
     missing_on,
     print_table,
     record_figures,
+    stage_summary,
     synth_all,
     synthesize,
 )
@@ -280,6 +283,63 @@ def test_failing_endpoints_counts_each_endpoint_once():
                           {"register": "core.y", "slack_ns": -0.3, "endpoints": 2}]
     assert failing_endpoints(report, 5.0, worst=1)["worst"] == f["worst"][:1]
     assert failing_endpoints({"critical_paths": []}, 5.0) is None
+
+
+def _report(*endpoints):
+    """A nextpnr report of one net per endpoint ``(cell, port, arrival_ns[, async])``."""
+    return {"detailed_net_timings": [
+        {"driver": "d", "port": "Q", "event": "<async>" if a[3:] else "posedge clk",
+         "endpoints": [{"cell": a[0], "port": a[1], "delay": [0.5, a[2]],
+                        "event": "posedge clk"}]} for a in endpoints]}
+
+
+def test_fmax_by_stage_takes_each_stage_at_its_latest_endpoint(capsys):
+    """The longest prefix wins (``detect.filter.`` before a shorter ``detect.``), a register
+    of no stage is a join's, a cell's suffixes are the register's, and a path from a pin is
+    not timed."""
+    report = _report(("core.gate.fit1_TRELLIS_FF_Q_3", "DI", 5.0),
+                     ("core.gate.hdrs.w_TRELLIS_FF_Q", "CE", 4.0),
+                     ("core.detect.filter.k_TRELLIS_FF_Q", "M", 4.0),
+                     ("core.detect.go_TRELLIS_FF_Q", "M", 3.2),
+                     ("core.gate_slice.skid_TRELLIS_FF_Q", "DI", 2.5),
+                     ("core.pack.mode_TRELLIS_FF_Q", "M", 9.9, "async"))
+    stages = {"gate": "gate.", "filter": "detect.filter.", "detect": "detect.",
+              "packetizer": "pack."}
+    got = fmax_by_stage(report, stages, "core.")
+    assert got == {"gate": 200.0, "filter": 250.0, "detect": 312.5, "joins": 400.0}
+    assert list(got) == ["gate", "filter", "detect", "joins"]
+    # out of context the same registers have no shell prefix: here every one is a join's
+    assert fmax_by_stage(report, stages) == {"joins": 200.0}
+    assert fmax_by_stage({}, stages) is None
+    runs = [{"by_stage": {"a": 200.0, "b": 180.0, "joins": 250.0}},
+            {"by_stage": {"a": 170.0, "b": 190.0, "joins": 240.0}}]
+    assert stage_summary(runs) == {
+        "a": {"mean_mhz": 185.0, "lowest_mhz": 170.0, "without_mean_mhz": 185.0},
+        "b": {"mean_mhz": 185.0, "lowest_mhz": 180.0, "without_mean_mhz": 185.0},
+        "joins": {"mean_mhz": 245.0, "lowest_mhz": 240.0, "without_mean_mhz": 175.0}}
+    fig = {"fmax_mhz": 170.0, "luts": 1, "ffs": 1, "dsps": 0, "brams": 0, "lanes": 1,
+           "samples_per_s": 170e6, "stages": stage_summary(runs)}
+    print_table({"device": DEVICE, "components": {"albcap_pipeline": fig}})
+    assert ("by stage, the mean MHz its endpoints allow (the pipeline's mean without them): "
+            "a 185.0 (185.0); b 185.0 (185.0); joins 245.0 (175.0)") in capsys.readouterr().out
+
+
+def test_pipeline_stages_name_the_pipelines_own_submodules():
+    """Each prefix of :data:`PIPELINE_STAGES` is a submodule of the elaborated pipeline, so a
+    renamed stage cannot leave its registers counted as a join's."""
+    from amaranth.hdl import Fragment
+
+    from hdl.pipeline import Pipeline
+
+    def names(fragment, above=""):
+        found = set()
+        for sub, name, *_ in fragment.subfragments:
+            found |= {above + name + "."} | names(sub, above + name + ".")
+        return found
+
+    inside = names(Fragment.get(Pipeline(), None))
+    assert set(PIPELINE_STAGES.values()) <= inside, set(PIPELINE_STAGES.values()) - inside
+    assert len(set(PIPELINE_STAGES.values())) == len(PIPELINE_STAGES)
 
 
 def test_record_figures_merges_per_configuration(tmp_path):
