@@ -134,3 +134,21 @@ def test_chart_refreshes_every_page_given(tmp_path, capsys):
                  "--out-dir", str(tmp_path), "--results", str(pages[0])]) != 0
     assert "fpga.json: not valid JSON" in capsys.readouterr().err
     assert pages[0].read_text() == before  # a bad record changes no page
+
+
+def test_the_faster_grades_on_the_fpga_page_are_the_recorded_ones():
+    """"The faster grades" in ``docs/fpga.md`` gives, per grade, the one-lane pipeline's
+    seeds, mean and lowest as ``albcap hdl synth --speed N --out`` recorded them in
+    ``docs/figures/fpga-speedN.json``, and each file holds its own grade's figures."""
+    import json
+
+    docs = Path(__file__).resolve().parent.parent / "docs"
+    page = (docs / "fpga.md").read_text()
+    for grade in (7, 8):
+        rec = json.loads((docs / "figures" / f"fpga-speed{grade}.json").read_text())
+        assert rec["device"]["speed"] == grade and rec["device"]["part"] == "LFE5U-85F"
+        fig = rec["figures"]["albcap_pipeline[context=in,static=registers]"]
+        assert fig["speed"] == grade and list(fig["seeds"]) == [str(s) for s in range(1, 9)]
+        seeds = " / ".join(f"{v:.1f}" for v in fig["seeds"].values())
+        row = f"| {grade} | {seeds} | {fig['seeds_mean_mhz']:.1f} | {fig['fmax_mhz']:.1f} |"
+        assert row in page, row
