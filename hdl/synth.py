@@ -424,7 +424,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds``, the parameters,
         ``worst_path`` (:func:`worst_path`: the path that holds ``fmax_mhz``) and
         ``failing`` (:func:`failing_endpoints`: every endpoint that misses ``target_mhz``,
-        by register).
+        by register); for ``albcap_pipeline`` also ``by_stage`` (:func:`fmax_by_stage`: the
+        clock each stage's own endpoints allow, MHz).
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
                                         context, placer, [seed], static, floorplan, 1, remap,
@@ -835,7 +836,9 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     ``missing_any``: how many registers miss the clock on at least one seed. That count is
     the size of the pool a target must clear: the one-lane pipeline misses 200 MHz at 19-76
     registers on each of eighteen placements, 198 registers in all, so no change to a few of
-    them makes it (``docs/fpga-history.md``, "The divider unrolled, and the pool").
+    them makes it (``docs/fpga-history.md``, "The divider unrolled, and the pool"). For the
+    pipeline ``stages`` (:func:`stage_summary`) adds, per stage, the mean and the lowest of
+    its own clock over the seeds and the pipeline's mean without it.
 
     ``jobs`` seeds are placed at once (default one): each nextpnr-ecp5 is one thread, so on
     the 2-core machine ``jobs=2`` halves a many-seed run (a join's seed is 40-65 minutes).
