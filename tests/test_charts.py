@@ -152,3 +152,23 @@ def test_the_faster_grades_on_the_fpga_page_are_the_recorded_ones():
         seeds = " / ".join(f"{v:.1f}" for v in fig["seeds"].values())
         row = f"| {grade} | {seeds} | {fig['seeds_mean_mhz']:.1f} | {fig['fmax_mhz']:.1f} |"
         assert row in page, row
+
+
+def test_the_four_stages_on_the_fpga_page_are_the_recorded_ones():
+    """"Four stages, each its own tail" in ``docs/fpga.md`` gives each stage's mean, lowest and
+    the pipeline's mean without it as the recorded one-lane pipeline's ``stages``."""
+    import json
+
+    docs = Path(__file__).resolve().parent.parent / "docs"
+    page = (docs / "fpga.md").read_text()
+    rec = json.loads((docs / "figures" / "fpga.json").read_text())
+    stages = rec["figures"]["albcap_pipeline[context=in,static=registers]"]["stages"]
+    names = {"filter": "the filter", "detector": "the detector", "gate": "the gate",
+             "packetizer": "the packetizer", "stitch": "the stitch"}
+    assert set(names) < set(stages)
+    for key, name in names.items():
+        s = stages[key]
+        start = f"| {name} | {s['mean_mhz']:.1f} | {s['lowest_mhz']:.1f} |"
+        line = next((ln for ln in page.splitlines() if ln.startswith(start)), None)
+        assert line is not None, start
+        assert line.endswith(f"| {s['without_mean_mhz']:.1f} |"), (line, s)
