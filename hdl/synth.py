@@ -45,9 +45,8 @@ from ._levels import cell_register, deepest_path, logic_levels
 from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "PIPELINE_STAGES", "SPEEDS", "failing_endpoints",
-           "figure_key", "fmax_by_stage", "levels",
-           "missing_on", "record_figures", "seeds_mean", "synth_all", "synth_components",
-           "synthesize"]
+           "figure_key", "fmax_by_stage", "levels", "missing_on", "record_figures",
+           "seeds_mean", "stage_summary", "synth_all", "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
