@@ -24,6 +24,8 @@ packetizer only once its frame is inside, and ``bank_id`` is written into it the
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 from amaranth.hdl import Cat, Module, Mux, Signal
 from amaranth.lib import data, memory, stream, wiring
 from amaranth.lib.wiring import In, Out
@@ -185,6 +187,12 @@ class Pipeline(wiring.Component):
     higher trigger rate frames queue in the gate's FIFO and, when it is full, are dropped
     there (counted in ``frames_dropped``).
     """
+
+    #: The stages by the names of their registers (the submodules ``elaborate`` names), for
+    #: the FPGA figures' clock of each stage (:func:`hdl.synth.fmax_by_stage`). A register of
+    #: none of them (the slices and rings that join the stages) belongs to ``"joins"``.
+    STAGES = MappingProxyType({"stitch": "stitch.", "gate": "gate.", "filter": "detect.filter.",
+                               "detector": "detect.detect.", "packetizer": "pack."})
 
     def __init__(self, fifo_bytes: int = FIFO_BYTES, gate_depth: int = GATE_LEN_MAX,
                  max_samples: int = GATE_LEN_MAX):

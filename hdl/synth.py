@@ -33,7 +33,7 @@ import tempfile
 import threading
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -43,6 +43,7 @@ from ._ceiling import Ceiling
 from ._floorplan import FLOORPLANS, apply_floorplan, check_placed
 from ._levels import cell_register, deepest_path, logic_levels
 from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
+from .pipeline import Pipeline
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "PIPELINE_STAGES", "SPEEDS", "failing_endpoints",
            "figure_key", "fmax_by_stage", "levels", "missing_on", "record_figures",
@@ -56,12 +57,10 @@ DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA38
 SPEEDS = (6, 7, 8)
 #: Registers a result's ``failing`` lists (the worst), and ``missing_on`` (the most seeds).
 FAILING_LISTED, MISSING_ON_LISTED = 8, 16
-#: The one-lane pipeline's stages by the names of their registers (its submodules,
-#: ``hdl.pipeline.Pipeline``; in context each under the shell's ``core.``), for
-#: :func:`fmax_by_stage`. A register of none of them (the slices and rings that join the
-#: stages, the shell) belongs to ``"joins"``.
-PIPELINE_STAGES = {"stitch": "stitch.", "gate": "gate.", "filter": "detect.filter.",
-                   "detector": "detect.detect.", "packetizer": "pack."}
+#: The one-lane pipeline's stages by the names of their registers (``Pipeline.STAGES``; in
+#: context each under the shell's ``core.``), for :func:`fmax_by_stage`. A component with a
+#: ``STAGES`` of its own gets ``by_stage`` in every placement.
+PIPELINE_STAGES = Pipeline.STAGES
 
 
 class _Ecp5Synth:
@@ -423,8 +422,8 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds``, the parameters,
         ``worst_path`` (:func:`worst_path`: the path that holds ``fmax_mhz``) and
         ``failing`` (:func:`failing_endpoints`: every endpoint that misses ``target_mhz``,
-        by register); for ``albcap_pipeline`` also ``by_stage`` (:func:`fmax_by_stage`: the
-        clock each stage's own endpoints allow, MHz).
+        by register); for a component with ``STAGES`` (the pipeline) also ``by_stage``
+        (:func:`fmax_by_stage`: the clock each stage's own endpoints allow, MHz).
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
                                         context, placer, [seed], static, floorplan, 1, remap,
@@ -478,6 +477,8 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
         # samples a clock when the input runs free (hdl.interleave: the fewer of lanes and
         # engines); the per-frame waits come on top, as model.accuracy.fpga_time charges
         rate = getattr(component, "samples_per_clock", lanes)
+        # the stages a component names (hdl.pipeline.Pipeline.STAGES), each timed on its own
+        stages = getattr(component, "STAGES", None)
         netlist, remapped = _netlist(component, name, context, static, wd, yosys, remap,
                                      redraw=redraw, mapping=mapping)
         placement = ["--lpf-allow-unconstrained"] if context == "in" else ["--out-of-context"]
@@ -540,9 +541,9 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"speed": speed} if speed != DEVICE["speed"] else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
-                **({"by_stage": fmax_by_stage(report, PIPELINE_STAGES,
+                **({"by_stage": fmax_by_stage(report, stages,
                                               "core." if context == "in" else "")}
-                   if name == "albcap_pipeline" else {}),
+                   if stages else {}),
                 "seconds": round(made + placed, 1),
             })
         # each register's logic depth, to tell the misses of several placements by depth
@@ -751,7 +752,7 @@ def _arrivals(report: dict) -> dict[tuple[str, str], float] | None:
     return arrival
 
 
-def fmax_by_stage(report: dict, stages: dict[str, str], prefix: str = "") -> dict | None:
+def fmax_by_stage(report: dict, stages: Mapping[str, str], prefix: str = "") -> dict | None:
     """The clock each stage's own endpoints allow in one placement, MHz to a tenth:
     ``1000 /`` the latest arrival at a register (or a hard block's input) of the stage.
 
@@ -767,7 +768,7 @@ def fmax_by_stage(report: dict, stages: dict[str, str], prefix: str = "") -> dic
     ----------
     report : dict
         nextpnr's ``--report`` JSON, written with ``--detailed-timing-report``.
-    stages : dict
+    stages : mapping
         ``{stage: prefix of its registers' names}`` (:data:`PIPELINE_STAGES`); the longest
         prefix that matches wins, and a register of none belongs to ``"joins"``.
     prefix : str

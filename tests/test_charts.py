@@ -4,6 +4,8 @@ from pathlib import Path
 
 from model.charts import onchip_point, pareto_front
 
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+
 
 def method(name, us, rmse_m, photon=False, bit_exact=False):
     return {"name": name, "us_per_waveform": us, "photon": photon, "bit_exact": bit_exact,
@@ -142,10 +144,9 @@ def test_the_faster_grades_on_the_fpga_page_are_the_recorded_ones():
     ``docs/figures/fpga-speedN.json``, and each file holds its own grade's figures."""
     import json
 
-    docs = Path(__file__).resolve().parent.parent / "docs"
-    page = (docs / "fpga.md").read_text()
+    page = (DOCS / "fpga.md").read_text()
     for grade in (7, 8):
-        rec = json.loads((docs / "figures" / f"fpga-speed{grade}.json").read_text())
+        rec = json.loads((DOCS / "figures" / f"fpga-speed{grade}.json").read_text())
         assert rec["device"]["speed"] == grade and rec["device"]["part"] == "LFE5U-85F"
         fig = rec["figures"]["albcap_pipeline[context=in,static=registers]"]
         assert fig["speed"] == grade and list(fig["seeds"]) == [str(s) for s in range(1, 9)]
@@ -159,9 +160,8 @@ def test_the_four_stages_on_the_fpga_page_are_the_recorded_ones():
     the pipeline's mean without it as the recorded one-lane pipeline's ``stages``."""
     import json
 
-    docs = Path(__file__).resolve().parent.parent / "docs"
-    page = (docs / "fpga.md").read_text()
-    rec = json.loads((docs / "figures" / "fpga.json").read_text())
+    page = (DOCS / "fpga.md").read_text()
+    rec = json.loads((DOCS / "figures" / "fpga.json").read_text())
     stages = rec["figures"]["albcap_pipeline[context=in,static=registers]"]["stages"]
     names = {"filter": "the filter", "detector": "the detector", "gate": "the gate",
              "packetizer": "the packetizer", "stitch": "the stitch"}
