@@ -114,7 +114,7 @@ def _synth(args) -> int:
                          f"spread, not a figure to record: leave out --out")
     res = synth_all(args.component, args.freq, params or None, args.router, args.context,
                     args.placer, args.seed, args.static, args.floorplan, args.jobs,
-                    args.remap, args.redraw, args.mapping, args.speed)
+                    args.remap, args.redraw, args.mapping, args.speed, args.work_dir)
     if args.out is not None:
         from .synth import record_figures
 
@@ -249,6 +249,10 @@ def register(subparsers) -> None:
     syn.add_argument("--param", action="append", metavar="NAME=VALUE",
                      help="constructor keyword of the one --component, e.g. lanes=8 "
                           "(repeatable)")
+    syn.add_argument("--work-dir", type=Path, default=None,
+                     help="keep the files here, a directory per component: the Verilog, "
+                          "Yosys's netlist, nextpnr's log and report (per seed in seed<N>); "
+                          "by default they are removed")
     syn.set_defaults(func=_synth)
     lev = actions.add_parser(
         "levels", help="Yosys only: the deepest LUT and carry-chain levels into registers",

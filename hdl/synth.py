@@ -821,7 +821,7 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
               seed: int | Sequence[int] = 1, static: str = "pins",
               floorplan: str | None = None, jobs: int = 1,
               remap: int = REMAP_INPUTS, redraw: int = 0, mapping: str = MAPPING,
-              speed: int = DEVICE["speed"]) -> dict:
+              speed: int = DEVICE["speed"], work_dir=None) -> dict:
     """:func:`synthesize` every component named (default: every exported one of
     :func:`synth_components`, the pipeline among them, not the :data:`DIAGNOSTICS`); returns
     ``{"device": ..., "components": {...}}``. ``params`` (constructor keywords) go to every
@@ -847,6 +847,11 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
 
     ``speed`` is the part's speed grade (:data:`SPEEDS`), in the result's ``device``: a file
     of figures holds one device's (:func:`record_figures` refuses another's).
+
+    ``work_dir`` keeps each component's files in ``work_dir/<name>`` (the Verilog, Yosys's
+    netlist and, per seed, nextpnr's log and report, in ``seed<N>`` with several seeds: every
+    endpoint's arrival is there for a look the summary does not take); by default they go to
+    a temporary directory, removed after.
     """
     _check_speed(speed)
     seeds = [seed] if isinstance(seed, int) else list(seed)
@@ -857,7 +862,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     names = list(names)
     components = {}
     for n in names:
-        runs, missed, depth = _synthesize(n, target_mhz, None, None, params, router, context,
+        wd = None if work_dir is None else Path(work_dir) / n
+        runs, missed, depth = _synthesize(n, target_mhz, None, wd, params, router, context,
                                           placer, seeds, static, floorplan, jobs, remap,
                                           redraw, mapping, speed)
         lowest = min(runs, key=lambda r: r["fmax_mhz"])

@@ -79,11 +79,17 @@ class TestSynth:
         assert {"fmax_mhz", "luts", "ffs", "dsps", "brams", "samples_per_s"} <= set(
             res["components"]["albcap_stitch"])
 
-    def test_several_seeds_keep_the_lowest(self, capsys):
-        """``--seed 1 2``: each seed placed, the lowest kept, every seed's fmax recorded."""
+    def test_several_seeds_keep_the_lowest(self, capsys, tmp_path):
+        """``--seed 1 2``: each seed placed, the lowest kept, every seed's fmax recorded; with
+        ``--work-dir`` each seed's nextpnr files kept."""
         assert main(["hdl", "synth", "--json", "--component", "albcap_stitch",
-                     "--seed", "1", "2"]) == 0
+                     "--seed", "1", "2", "--work-dir", str(tmp_path / "w")]) == 0
         r = json.loads(capsys.readouterr().out)["components"]["albcap_stitch"]
+        for seed in (1, 2):
+            report = json.loads((tmp_path / "w" / "albcap_stitch" / f"seed{seed}" /
+                                 "report.json").read_text())
+            assert round(min(v["achieved"] for v in report["fmax"].values()), 1) == \
+                r["seeds"][str(seed)]
         assert set(r["seeds"]) == {"1", "2"}
         assert r["fmax_mhz"] == min(r["seeds"].values()) == r["seeds"][str(r["seed"])]
         assert r["seeds_mean_mhz"] == round(sum(r["seeds"].values()) / 2, 1)
@@ -98,14 +104,16 @@ class TestSynth:
     def test_missing_on_several_seeds(self, tmp_path, capsys):
         """``missing_on``: the registers that miss the clock on more than one seed, and on how
         many, and ``missing_any``, how many miss on at least one, checked against each seed's
-        own report. At 400 MHz the stitch misses at many registers on both seeds, on some at
-        one of them only."""
-        res = synth_all(["albcap_stitch"], target_mhz=400.0, seed=[1, 2])
+        own report (kept by ``work_dir``). At 400 MHz the stitch misses at many registers on
+        both seeds, on some at one of them only."""
+        res = synth_all(["albcap_stitch"], target_mhz=400.0, seed=[1, 2], work_dir=tmp_path)
         r = res["components"]["albcap_stitch"]
+        kept = tmp_path / "albcap_stitch"
+        assert (kept / "albcap_stitch.v").exists() and (kept / "albcap_stitch.json").exists()
         every = []
         for seed in (1, 2):
-            synthesize("albcap_stitch", target_mhz=400.0, seed=seed, work_dir=tmp_path / f"{seed}")
-            report = json.loads((tmp_path / f"{seed}" / "report.json").read_text())
+            assert "Max frequency" in (kept / f"seed{seed}" / "nextpnr.log").read_text()
+            report = json.loads((kept / f"seed{seed}" / "report.json").read_text())
             listed = failing_endpoints(report, 2.5, worst=None)["worst"]
             every.append({x["register"] for x in listed})
         both = sorted(every[0] & every[1])
