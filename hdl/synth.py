@@ -46,7 +46,7 @@ from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
 from .pipeline import Pipeline
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "PIPELINE_STAGES", "SPEEDS", "failing_endpoints",
-           "figure_key", "fmax_by_stage", "levels", "missing_on", "record_figures",
+           "figure_key", "fmax_by_stage", "levels", "missing_on", "near_clock", "record_figures",
            "seeds_mean", "stage_summary", "synth_all", "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
@@ -57,6 +57,10 @@ DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA38
 SPEEDS = (6, 7, 8)
 #: Registers a result's ``failing`` lists (the worst), and ``missing_on`` (the most seeds).
 FAILING_LISTED, MISSING_ON_LISTED = 8, 16
+#: How close to the clock period a register's latest arrival counts as near it, ns
+#: (:func:`near_clock`): a placement misses at a few registers, and the next clock up needs
+#: those within a quarter or half of a nanosecond brought in too.
+NEAR_MARGINS_NS = (0.25, 0.5, 0.75)
 #: The one-lane pipeline's stages by the names of their registers (``Pipeline.STAGES``; in
 #: context each under the shell's ``core.``), for :func:`fmax_by_stage`. A component with a
 #: ``STAGES`` of its own gets ``by_stage`` in every placement.
@@ -422,8 +426,9 @@ def synthesize(name: str, target_mhz: float = 200.0, lanes: int | None = None,
         ``fmax_mhz, luts, ffs, dsps, brams, samples_per_s, seconds``, the parameters,
         ``worst_path`` (:func:`worst_path`: the path that holds ``fmax_mhz``) and
         ``failing`` (:func:`failing_endpoints`: every endpoint that misses ``target_mhz``,
-        by register); for a component with ``STAGES`` (the pipeline) also ``by_stage``
-        (:func:`fmax_by_stage`: the clock each stage's own endpoints allow, MHz).
+        by register), ``near`` (:func:`near_clock`: how many registers arrive within 0.25,
+        0.5 and 0.75 ns of its period); for a component with ``STAGES`` (the pipeline) also
+        ``by_stage`` (:func:`fmax_by_stage`: the clock each stage's own endpoints allow, MHz).
     """
     runs, _missed, _depth = _synthesize(name, target_mhz, lanes, work_dir, params, router,
                                         context, placer, [seed], static, floorplan, 1, remap,
@@ -541,6 +546,7 @@ def _synthesize(name: str, target_mhz: float, lanes: int | None, work_dir, param
                 **({"speed": speed} if speed != DEVICE["speed"] else {}),
                 "worst_path": worst_path(report),
                 "failing": {**every, "worst": every["worst"][:FAILING_LISTED]},
+                "near": near_clock(report, 1000.0 / target_mhz),
                 **({"by_stage": fmax_by_stage(report, stages,
                                               "core." if context == "in" else "")}
                    if stages else {}),
@@ -752,6 +758,35 @@ def _arrivals(report: dict) -> dict[tuple[str, str], float] | None:
     return arrival
 
 
+def near_clock(report: dict, period_ns: float,
+               margins: Sequence[float] = NEAR_MARGINS_NS) -> dict | None:
+    """How many registers arrive within each of ``margins`` (ns) of the clock period: the tail
+    of one placement's arrivals, not only its misses.
+
+    A placement of the one-lane pipeline misses 200 MHz at six to ten registers, but some
+    twenty more arrive within 0.25 ns of the period and a hundred within 0.5 (sixty-sixth
+    session, ``docs/fpga-history.md``, "High-fanout nets split"), a different set on every
+    placement: what a clock 5-10 % higher needs brought in. Each register counts once, at its
+    latest endpoint (:func:`hdl._levels.cell_register`), as in :func:`failing_endpoints`;
+    paths from or to a pin are left out.
+
+    Returns
+    -------
+    dict or None
+        ``{"<margin>": registers}`` for each margin (``"0.25"``, ``"0.5"``, ...), the
+        registers whose latest arrival is later than ``period_ns - margin`` (those that miss
+        the clock among them); None when the report has no detailed timing.
+    """
+    arrival = _arrivals(report)
+    if arrival is None:
+        return None
+    latest: dict[str, float] = {}
+    for (cell, _port), d in arrival.items():
+        reg = cell_register(cell)
+        latest[reg] = max(latest.get(reg, d), d)
+    return {f"{m:g}": sum(d > period_ns - m for d in latest.values()) for m in margins}
+
+
 def fmax_by_stage(report: dict, stages: Mapping[str, str], prefix: str = "") -> dict | None:
     """The clock each stage's own endpoints allow in one placement, MHz to a tenth:
     ``1000 /`` the latest arrival at a register (or a hard block's input) of the stage.
@@ -838,7 +873,8 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
     registers on each of eighteen placements, 198 registers in all, so no change to a few of
     them makes it (``docs/fpga-history.md``, "The divider unrolled, and the pool"). For the
     pipeline ``stages`` (:func:`stage_summary`) adds, per stage, the mean and the lowest of
-    its own clock over the seeds and the pipeline's mean without it.
+    its own clock over the seeds and the pipeline's mean without it; ``near_mean`` is
+    ``near`` (:func:`near_clock`) averaged over the seeds.
 
     ``jobs`` seeds are placed at once (default one): each nextpnr-ecp5 is one thread, so on
     the 2-core machine ``jobs=2`` halves a many-seed run (a join's seed is 40-65 minutes).
@@ -873,6 +909,9 @@ def synth_all(names=None, target_mhz: float = 200.0, params: dict | None = None,
                       "missing_on": missing_on(missed),
                       "missing_any": len(set().union(*missed)),
                       "missing_by_depth": missing_by_depth(depth, missed),
+                      **({"near_mean": {m: round(sum(r["near"][m] for r in runs) / len(runs), 1)
+                                        for m in lowest["near"]}}
+                         if lowest.get("near") else {}),
                       **({"stages": stage_summary(runs)} if "by_stage" in lowest else {})}
         components[n] = lowest
     return {"device": {**DEVICE, "speed": speed}, "components": components}
@@ -1016,6 +1055,13 @@ def print_table(res: dict) -> None:
             names = ", ".join(f"{x['register']} ({x['slack_ns']:+.2f})" for x in f["worst"][:4])
             print(f"{'':>16} {f['endpoints']} endpoints below zero slack in {f['registers']} "
                   f"registers: {names}")
+        near = r.get("near")
+        if near:
+            mean = r.get("near_mean")
+            print(f"{'':>16} registers within {' / '.join(near)} ns of the clock: "
+                  f"{' / '.join(str(v) for v in near.values())}"
+                  + (f" (mean over the seeds {' / '.join(f'{v:g}' for v in mean.values())})"
+                     if mean else ""))
         n = len(r.get("seeds", ()))
         if r.get("missing_on"):
             names = ", ".join(f"{x['register']} ({x['seeds']})" for x in r["missing_on"][:6])
