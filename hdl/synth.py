@@ -777,6 +777,16 @@ def near_clock(report: dict, period_ns: float,
         registers whose latest arrival is later than ``period_ns - margin`` (those that miss
         the clock among them); None when the report has no detailed timing.
     """
+    latest = _register_arrivals(report)
+    if latest is None:
+        return None
+    return {f"{m:g}": sum(d > period_ns - m for d in latest.values()) for m in margins}
+
+
+def _register_arrivals(report: dict) -> dict[str, float] | None:
+    """Each register's latest arrival, ns, over its endpoints (:func:`_arrivals`; its bits
+    and ports one register, :func:`hdl._levels.cell_register`); None without detailed
+    timing."""
     arrival = _arrivals(report)
     if arrival is None:
         return None
@@ -784,7 +794,7 @@ def near_clock(report: dict, period_ns: float,
     for (cell, _port), d in arrival.items():
         reg = cell_register(cell)
         latest[reg] = max(latest.get(reg, d), d)
-    return {f"{m:g}": sum(d > period_ns - m for d in latest.values()) for m in margins}
+    return latest
 
 
 def fmax_by_stage(report: dict, stages: Mapping[str, str], prefix: str = "") -> dict | None:
@@ -815,13 +825,12 @@ def fmax_by_stage(report: dict, stages: Mapping[str, str], prefix: str = "") -> 
         ``{stage: MHz}`` for every stage with a timed endpoint, ``"joins"`` last; None when
         the report has no detailed timing.
     """
-    arrival = _arrivals(report)
-    if arrival is None:
+    by_register = _register_arrivals(report)
+    if by_register is None:
         return None
     ranked = sorted(((prefix + p, st) for st, p in stages.items()), key=lambda x: -len(x[0]))
     latest: dict[str, float] = {}
-    for (cell, _port), d in arrival.items():
-        name = cell_register(cell)
+    for name, d in by_register.items():
         st = next((st for p, st in ranked if name.startswith(p)), "joins")
         latest[st] = max(latest.get(st, 0.0), d)
     order = [st for st in stages if st in latest] + (["joins"] if "joins" in latest else [])

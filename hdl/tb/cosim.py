@@ -153,7 +153,8 @@ def build(design: Design, waves: bool | None = None) -> Path:
     waves = waves_requested() if waves is None else waves
     text = design.verilog()
     args = _build_args()
-    key = _build_key(text, waves, args, opt_level())
+    level = opt_level()
+    key = _build_key(text, waves, args, level)
     out = build_root() / f"{design.name}-{key}"
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(out.parent / f"{out.name}.lock", "w") as lock:
@@ -165,7 +166,7 @@ def build(design: Design, waves: bool | None = None) -> Path:
             src.write_text(text)
             (out / _PORTS_VLT).write_text(_ports_only(design.name))
             _verilator_on_path()
-            runtime = build_root() / f"runtime-waves{int(waves)}{opt_level()}"
+            runtime = build_root() / f"runtime-waves{int(waves)}{level}"
             _copy_runtime(runtime, out)
             runner = get_runner("verilator")
             runner.build(sources=[src], hdl_toplevel=design.name, build_dir=out,
