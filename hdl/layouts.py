@@ -13,8 +13,6 @@ header's bytes read little-endian: ``int.from_bytes(FRAME_HEADER.pack(...).tobyt
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from amaranth.hdl import Shape, signed, unsigned
 from amaranth.lib import data, wiring
 from amaranth.lib.wiring import Out
@@ -30,9 +28,7 @@ __all__ = [
     "GATE_IN",
     "GATE_OUT",
     "STITCHED",
-    "FlatField",
     "config_signature",
-    "flatten",
     "register_shape",
     "struct_layout",
 ]
@@ -106,39 +102,3 @@ def config_signature(group: str) -> wiring.Signature:
         groups = sorted({r.group for r in REGISTERS})
         raise ValueError(f"no registers in group {group!r}; groups: {groups}")
     return wiring.Signature({r.name: Out(unsigned(r.width), init=r.reset) for r in regs})
-
-
-@dataclass(frozen=True)
-class FlatField:
-    """A leaf of a (possibly nested) layout: dotted ``path``, bit ``offset``, ``width``, sign."""
-
-    path: str
-    offset: int
-    width: int
-    signed: bool
-
-
-def flatten(shape, prefix: str = "", offset: int = 0) -> list[FlatField]:
-    """The leaves of a shape-castable, in bit order, for packing beats in testbenches.
-
-    A plain shape gives one leaf named ``prefix`` (``"value"`` at the top). Nested structs give
-    dotted paths, e.g. ``codes.l``; array layouts (the lanes of a multi-lane stream) give one
-    path per element, e.g. ``x.0``, ``x.1``.
-    """
-    if isinstance(shape, data.StructLayout):
-        out = []
-        for name, fld in shape:
-            path = f"{prefix}.{name}" if prefix else name
-            out += flatten(fld.shape, path, offset + fld.offset)
-        return out
-    if isinstance(shape, data.ArrayLayout):
-        # lanes of a multi-lane stream: ``x.0``, ``x.1``, ... (lane 0 in the low bits)
-        out = []
-        for i in range(shape.length):
-            path = f"{prefix}.{i}" if prefix else str(i)
-            out += flatten(shape.elem_shape, path, offset + i * shape.size // shape.length)
-        return out
-    if isinstance(shape, data.Layout):
-        raise TypeError(f"only struct and array layouts can be flattened, not {shape!r}")
-    s = Shape.cast(shape)
-    return [FlatField(prefix or "value", offset, s.width, s.signed)]

@@ -6,15 +6,8 @@ import numpy as np
 import pytest
 from amaranth.hdl import signed, unsigned
 
-from hdl.layouts import (
-    FRAME_HEADER_LAYOUT,
-    GATE_IN,
-    FlatField,
-    config_signature,
-    flatten,
-    struct_layout,
-)
-from hdl.tb.streams import Pattern, load_bundle, pack, save_bundle, unpack
+from hdl.layouts import FRAME_HEADER_LAYOUT, GATE_IN, config_signature, struct_layout
+from hdl.tb.streams import FlatField, Pattern, flatten, load_bundle, pack, save_bundle, unpack
 from model.layouts import FRAME_HEADER, PEAK_RECORD
 from model.registers import REGISTERS
 
@@ -143,3 +136,18 @@ def test_lane_words_round_trip_and_flatten():
         lane_words([np.arange(3), np.arange(0)], 2)
     with pytest.raises(ValueError, match="lanes"):
         filter_in_layout(0)
+
+
+def test_the_bench_imports_no_amaranth():
+    """The simulator process imports the bench and its packing (``hdl.tb.cocotb_bench``) at
+    every run; Amaranth's import was a sixth of a run's start. A fresh interpreter that imports
+    the bench must not have loaded it."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys; import hdl.tb.cocotb_bench; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'amaranth'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parents[1], check=True).stdout
+    assert out.strip() == "[]", out

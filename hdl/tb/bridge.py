@@ -105,8 +105,8 @@ class _Adc:
     def __init__(self, source, prf_clocks: int):
         from model.device import LINE_SYNC_SHOTS
 
-        from ..layouts import flatten
         from ..pipeline import ADC_IN
+        from .streams import flatten
 
         self.adc = source.adc
         self.prf = prf_clocks

@@ -25,11 +25,11 @@ import numpy as np
 from cocotb.clock import Clock
 from cocotb.triggers import RisingEdge
 
-from ..layouts import FlatField
 from .streams import (
     BENCH_IN_ENV,
     BENCH_OUT_ENV,
     SETTLE_CLOCKS,
+    FlatField,
     Pattern,
     load_bundle,
     pack,
