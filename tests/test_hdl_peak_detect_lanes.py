@@ -9,10 +9,12 @@ length limits ``W + 2P + 1`` and ``W + 2P + 2``, peaks at ``thr`` and ``thr + 1`
 ``thr``, ``thr + 1`` for rule 2), and a noise window at its largest (``noise = NOISE_MAX``).
 Every field of every result beat and every surface message is compared, plain, with idle
 insertion and with backpressure, and in plain traffic the stated latencies. One run per lanes
-and traffic holds all five register sets, written between frames (:data:`SEPARATORS`). Two
-Verilator builds: 4 lanes, and 3 lanes (an odd count) with a lookahead one beat short of hiding
+and traffic holds all five register sets, written between frames (:data:`SEPARATORS`). Four
+Verilator builds: 4 lanes; 3 lanes (an odd count) with a lookahead one beat short of hiding
 the threshold wait, which runs the same stream, hundreds of short frames and back-to-back
-frames (one clock's wait each). Three lanes without a lookahead run inside the join
+frames (one clock's wait each); 11 lanes (the 1 GS/s build's count), with noise windows that
+end inside a frame's first or second beat (:data:`WINDOWS`); and 2 lanes, for the threshold
+tag's wrap. Three lanes without a lookahead run inside the join
 (``tests/test_hdl_detect_lanes.py``).
 """
 
@@ -212,31 +214,42 @@ def test_verilator(tmp_path, lanes, traffic_name):
         check_latencies(res, st, results, dut)
 
 
-#: A noise window within a frame's first two beats: one tap and P = 4, so the first candidate
-#: sample is W + 2P = 8, and a beat that reaches W + 2P + 1 must wait for the threshold. At 6
-#: lanes a frame's second beat of 4 samples or more does, one of 3 does not (the flags made at
-#: a frame's first beat for the beat after it, `next_needs` in hdl/_peak_lanes.py); at 12
-#: lanes a first beat of 10 samples or more does, one of 9 does not (`first_needs`). At 4
-#: lanes no register set has such a window (W + 2P >= 8 > 2 x 4 - 2); the 1 GS/s build has 11.
-WINDOW_IN_TWO_BEATS = (1, Config(noise_log2=2, k_thr_q4=32, min_thr=2, min_sep=1,
-                                 bottom_rule=0))
-#: lanes -> frame lengths whose last beat is the one that does or does not reach it
-WINDOW_EDGES = {6: (6 + 3, 6 + 4), 12: (9, 10)}
+#: Noise windows within a frame's first two beats, at 11 lanes (the 1 GS/s build's count), one
+#: tap each. With P = 4 the first candidate sample is W + 2P = 8, and a beat that reaches W + 2P
+#: + 1 must wait for the threshold: a frame's first beat of 10 samples or more does, one of 9
+#: does not (`first_needs` in hdl/_peak_lanes.py). With P = 8 (W + 2P = 16) a frame's second
+#: beat of 7 samples or more reaches 17, one of 6 does not (the flags made at a frame's first
+#: beat for the beat after it, `next_needs`, from `first_short`). At 4 lanes no register set
+#: has such a window (W + 2P >= 8 > 2 x 4 - 2). (Until the sixty-seventh session the two cases
+#: had builds of their own, 12 and 6 lanes with P = 4.)
+WINDOW_LANES = 11
+#: case -> (taps, register set, the frame lengths whose last beat does not and does reach it)
+WINDOWS = {
+    "first_beat": (1, Config(noise_log2=2, k_thr_q4=32, min_thr=2, min_sep=1, bottom_rule=0),
+                   (9, 10)),
+    "second_beat": (1, Config(noise_log2=3, k_thr_q4=32, min_thr=2, min_sep=1, bottom_rule=0),
+                    (WINDOW_LANES + 6, WINDOW_LANES + 7)),
+}
 
 
 @pytest.mark.parametrize("traffic_name", list(TRAFFIC))
-@pytest.mark.parametrize("lanes", sorted(WINDOW_EDGES))
-def test_verilator_window_within_two_beats(tmp_path, lanes, traffic_name):
+@pytest.mark.parametrize("case", list(WINDOWS))
+def test_verilator_window_within_two_beats(tmp_path, case, traffic_name):
     """Frames of every length from W + 2P up, bit-exact: a beat that needs the threshold and
     goes without it gives another result. (One that waits for a threshold it does not need
     gives the same, a few clocks later: the short frames come back to back, each behind the
     result before it, so no latency of theirs is their own to check.)"""
-    L, cfg = WINDOW_IN_TWO_BEATS
-    ys, ks = lane_frames(L, cfg, lanes, np.random.default_rng(11))
-    assert {len(y) for y in ys} >= set(WINDOW_EDGES[lanes])
+    L, cfg, edges = WINDOWS[case]
+    W, P = L - 1, 1 << cfg.noise_log2
+    # the edges sit where the docstring of WINDOWS says, for this lane count
+    first, second = range(WINDOW_LANES), range(WINDOW_LANES, 2 * WINDOW_LANES)
+    beat = first if case == "first_beat" else second
+    assert W + 2 * P + 1 in beat and edges[0] - 1 < W + 2 * P + 1 <= edges[1] - 1
+    ys, ks = lane_frames(L, cfg, WINDOW_LANES, np.random.default_rng(11))
+    assert {len(y) for y in ys} >= set(edges)
     fr = Frames(L, cfg, ys, ks)
     st = SimpleNamespace(ys=fr.ys, ks=fr.ks, group=[fr] * len(fr.ys), changes=[])
-    res = run_stream(tmp_path, st, lanes, 0, traffic_name)
+    res = run_stream(tmp_path, st, WINDOW_LANES, 0, traffic_name)
     assert not res.timeout and res.violations == {"o": 0, "surface": 0}
     results = fr.results()
     check_results(res.sinks["o"], results)
