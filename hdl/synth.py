@@ -46,7 +46,8 @@ from ._remap import MAX_INPUTS, check_equivalent, remap_small_cones
 from .pipeline import Pipeline
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "PIPELINE_STAGES", "SPEEDS", "failing_endpoints",
-           "figure_key", "fmax_by_stage", "levels", "missing_on", "near_clock", "record_figures",
+           "figure_key", "fmax_by_stage", "levels", "missing_on", "near_by_port", "near_clock",
+           "record_figures",
            "seeds_mean", "stage_summary", "synth_all", "synth_components", "synthesize"]
 
 #: The part the figures are for (issue 4).
@@ -61,6 +62,9 @@ FAILING_LISTED, MISSING_ON_LISTED = 8, 16
 #: (:func:`near_clock`): a placement misses at a few registers, and the next clock up needs
 #: those within a quarter or half of a nanosecond brought in too.
 NEAR_MARGINS_NS = (0.25, 0.5, 0.75)
+#: The inputs (bit numbers left out) that one net drives on many cells at once: a flip-flop's
+#: clock enable and set/reset, a LUT-RAM's write address and write enable (:func:`near_by_port`).
+SHARED_PORTS = ("CE", "LSR", "WAD", "WRE")
 #: The one-lane pipeline's stages by the names of their registers (``Pipeline.STAGES``; in
 #: context each under the shell's ``core.``), for :func:`fmax_by_stage`. A component with a
 #: ``STAGES`` of its own gets ``by_stage`` in every placement.
@@ -741,10 +745,18 @@ def _arrivals(report: dict) -> dict[tuple[str, str], float] | None:
     """Every timed endpoint's latest arrival, ns after the launching edge, by ``(cell,
     port)``, from nextpnr's ``--detailed-timing-report`` (None without it); the paths from or
     to an unconstrained pin left out (:func:`failing_endpoints`)."""
+    latest = _arrivals_by_net(report)
+    if latest is None:
+        return None
+    return {key: d for key, (d, _net) in latest.items()}
+
+
+def _arrivals_by_net(report: dict) -> dict[tuple[str, str], tuple[float, str]] | None:
+    """:func:`_arrivals` with the net that brings each endpoint its latest arrival."""
     nets = report.get("detailed_net_timings")
     if nets is None:
         return None
-    arrival: dict[tuple[str, str], float] = {}
+    arrival: dict[tuple[str, str], tuple[float, str]] = {}
     for net in nets:
         if net.get("event") == "<async>":
             continue
@@ -754,8 +766,58 @@ def _arrivals(report: dict) -> dict[tuple[str, str], float] | None:
             d = ep["delay"]
             d = max(d) if isinstance(d, list) else float(d)  # [min, max] in nextpnr 0.11
             key = (ep["cell"], ep["port"])
-            arrival[key] = max(arrival.get(key, d), d)
+            if key not in arrival or d > arrival[key][0]:
+                arrival[key] = (d, net["net"])
     return arrival
+
+
+def near_by_port(report: dict, period_ns: float, margin: float = 0.5,
+                 listed: int = FAILING_LISTED) -> dict | None:
+    """Where the endpoints that arrive within ``margin`` ns of the clock period enter their
+    cells, and which nets bring the late inputs that many cells share.
+
+    :func:`near_clock` counts the registers near the clock; this says by which input they are
+    near it: a flip-flop's data through its slice's LUT (``DI``) or straight (``M``), its clock
+    enable (``CE``) or its set/reset (``LSR``), a LUT-RAM's write address (``WAD``) or write
+    enable (``WRE``), a block RAM's or a DSP's ports. Those four are each one net's route to
+    many cells (a wide register's enable, a FIFO's write address to every LUT-RAM of its
+    width), so their nets are listed, most endpoints first: one change in front of such a net
+    moves all its endpoints, where data inputs are each their own path.
+
+    Parameters
+    ----------
+    report : dict
+        nextpnr's JSON report with ``--detailed-timing-report``.
+    period_ns : float
+        The clock period the arrivals are measured against (5.0 for 200 MHz).
+    margin : float
+        How close to the period, ns: endpoints whose latest arrival is later than
+        ``period_ns - margin`` (those that miss the clock among them).
+    listed : int
+        How many of the shared inputs' nets to list.
+
+    Returns
+    -------
+    dict or None
+        ``{"endpoints": n, "ports": {port: n}, "shared": [{"net": name, "endpoints": n},
+        ...]}``, ports by name without their bit number (``WAD3`` counts as ``WAD``), most
+        first; ``shared`` the nets of the ``CE``, ``LSR``, ``WAD`` and ``WRE`` endpoints among
+        them. None when the report has no detailed timing.
+    """
+    arrival = _arrivals_by_net(report)
+    if arrival is None:
+        return None
+    ports: Counter[str] = Counter()
+    shared: Counter[str] = Counter()
+    for (_cell, port), (d, net) in arrival.items():
+        if d > period_ns - margin:
+            name = port.rstrip("0123456789")
+            ports[name] += 1
+            if name in SHARED_PORTS:
+                shared[net] += 1
+    return {"endpoints": sum(ports.values()), "ports": dict(ports.most_common()),
+            "shared": [{"net": n, "endpoints": k}
+                       for n, k in sorted(shared.items(), key=lambda x: (-x[1], x[0]))[:listed]]}
 
 
 def near_clock(report: dict, period_ns: float,

@@ -16,6 +16,7 @@ from hdl.synth import (
     fmax_by_stage,
     missing_by_depth,
     missing_on,
+    near_by_port,
     near_clock,
     print_table,
     record_figures,
@@ -55,6 +56,10 @@ class TestSynth:
         assert failing_endpoints(report, w["ns"] + 0.01)["endpoints"] == 0
         assert r["failing"] == failing_endpoints(report, 1000 / r["target_mhz"])
         assert r["near"] == near_clock(report, 1000 / r["target_mhz"])
+        # every timed endpoint of a real report by its input: with no margin to spare, all
+        every = near_by_port(report, 0.0, margin=0.0)
+        assert every["endpoints"] == sum(every["ports"].values()) > r["ffs"] // 2
+        assert {"DI", "CE"} <= set(every["ports"]) and every["shared"]
         print_table({"device": DEVICE, "components": {"albcap_stitch": r}})
         table = capsys.readouterr().out
         assert f"worst path {w['from']} -> {w['to']}: {w['ns']} ns" in table
@@ -318,9 +323,41 @@ def test_near_clock_counts_each_register_once_by_its_latest_arrival():
 def _report(*endpoints):
     """A nextpnr report of one net per endpoint ``(cell, port, arrival_ns[, async])``."""
     return {"detailed_net_timings": [
-        {"driver": "d", "port": "Q", "event": "<async>" if a[3:] else "posedge clk",
+        {"driver": "d", "port": "Q", "net": f"n{i}",
+         "event": "<async>" if a[3:] else "posedge clk",
          "endpoints": [{"cell": a[0], "port": a[1], "delay": [0.5, a[2]],
-                        "event": "posedge clk"}]} for a in endpoints]}
+                        "event": "posedge clk"}]} for i, a in enumerate(endpoints)]}
+
+
+def test_near_by_port_counts_endpoints_by_input_and_lists_the_shared_nets():
+    """Endpoints within the margin by port (bit numbers dropped, each endpoint at its latest
+    net), the one at the margin itself not; the nets of the shared inputs (clock enable,
+    set/reset, LUT-RAM write address and enable) most endpoints first, ties by name, as many
+    as ``listed``; pins left out; None without detailed timing."""
+    def net(name, *eps, event="posedge clk"):
+        return {"driver": "d", "port": "Q", "net": name, "event": event,
+                "endpoints": [{"cell": c, "port": p, "delay": [0.4, d], "event": "posedge clk"}
+                              for c, p, d in eps]}
+
+    report = {"detailed_net_timings": [
+        net("en", ("a_FF_Q_0", "CE", 4.7), ("a_FF_Q_1", "CE", 4.9), ("b_FF_Q", "CE", 4.2)),
+        net("wa", ("ram0", "WAD3", 4.6), ("ram1", "WAD3", 4.55), ("ram1", "WAD0", 4.51)),
+        net("rst", ("c_FF_Q", "LSR", 4.8)),
+        net("late", ("a_FF_Q_0", "CE", 5.2)),  # the same endpoint later on another net
+        net("x", ("d_FF_Q", "DI", 5.3), ("e_FF_Q", "M", 4.5), ("dsp", "B12", 4.9)),
+        net("pin", ("f_FF_Q", "CE", 6.0), event="<async>"),
+    ]}
+    r = near_by_port(report, 5.0)
+    assert r["endpoints"] == 8
+    assert r["ports"] == {"WAD": 3, "CE": 2, "LSR": 1, "DI": 1, "B": 1}
+    assert list(r["ports"])[:2] == ["WAD", "CE"]  # most first
+    assert r["shared"] == [{"net": "wa", "endpoints": 3}, {"net": "en", "endpoints": 1},
+                           {"net": "late", "endpoints": 1}, {"net": "rst", "endpoints": 1}]
+    assert near_by_port(report, 5.0, listed=1)["shared"] == r["shared"][:1]
+    # a wider margin takes in b's enable and e's data (4.5 is not later than 5.0 - 0.5)
+    wide = near_by_port(report, 5.0, margin=0.81)
+    assert wide["ports"]["CE"] == 3 and wide["ports"]["M"] == 1 and wide["endpoints"] == 10
+    assert near_by_port({"critical_paths": []}, 5.0) is None
 
 
 def test_fmax_by_stage_takes_each_stage_at_its_latest_endpoint(capsys):
