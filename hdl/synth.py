@@ -47,8 +47,8 @@ from .pipeline import Pipeline
 
 __all__ = ["DEVICE", "ECP5_SYNTH", "PIPELINE_STAGES", "SPEEDS", "failing_endpoints",
            "figure_key", "fmax_by_stage", "levels", "missing_on", "near_by_port", "near_clock",
-           "record_figures",
-           "seeds_mean", "stage_summary", "synth_all", "synth_components", "synthesize"]
+           "record_figures", "seeds_mean", "stage_summary", "synth_all", "synth_components",
+           "synthesize"]
 
 #: The part the figures are for (issue 4).
 DEVICE = {"family": "ecp5", "part": "LFE5U-85F", "speed": 6, "package": "CABGA381"}
